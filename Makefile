@@ -1,0 +1,62 @@
+# aobake: `make bake` sets up .venv and bakes data/ into out/; `make test` runs the suite.
+# Batch: `make -j2 batch IN=dir OUT=dir` bakes every mesh in IN into OUT, only what changed.
+
+PYTHON ?= python3
+VENV   ?= .venv
+PY     := $(VENV)/bin/python
+AOBAKE := $(VENV)/bin/aobake
+STAMP  := $(VENV)/.installed
+BAKE_FLAGS ?= --quiet
+
+IN  ?= data
+OUT ?= out
+MESH_EXT := ply obj stl off glb gltf usd usda usdc
+INPUTS   := $(foreach e,$(MESH_EXT),$(wildcard $(IN)/*.$(e)))
+# One .ply and one .usda per input; the stem keeps the input suffix so bunny.obj and
+# bunny.ply do not collide.
+OUT_PLY  := $(patsubst $(IN)/%,$(OUT)/%.ply,$(INPUTS))
+OUT_USD  := $(patsubst $(IN)/%,$(OUT)/%.usda,$(INPUTS))
+
+.PHONY: help venv bake batch test bench lint coverage clean
+
+help: ## Show this help
+	@awk 'BEGIN {FS = ":.*?## "} /^[a-zA-Z_-]+:.*?## / {printf "  %-10s %s\n", $$1, $$2}' $(MAKEFILE_LIST)
+
+venv: $(STAMP) ## Create .venv and install aobake with its test extras
+
+$(STAMP): pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --quiet --upgrade pip
+	$(PY) -m pip install --quiet -e '.[test,plot]'
+	@touch $@
+
+bake: $(STAMP) ## Bake every mesh in data/ into out/ (PLY and USD)
+	@$(MAKE) --no-print-directory batch IN=data OUT=out
+
+batch: $(STAMP) $(OUT_PLY) $(OUT_USD) ## Bake IN=dir into OUT=dir (parallel with -j, only what changed)
+
+$(OUT)/%.ply: $(IN)/% $(STAMP) | $(OUT)
+	$(AOBAKE) bake $< -o $@ $(BAKE_FLAGS)
+
+$(OUT)/%.usda: $(IN)/% $(STAMP) | $(OUT)
+	$(AOBAKE) bake $< -o $@ $(BAKE_FLAGS)
+
+$(OUT):
+	mkdir -p $@
+
+test: $(STAMP) ## Run the test suite
+	$(PY) -m pytest -q
+
+bench: $(STAMP) ## Benchmarks (prints ratios measured in one run); installs libigl for the peer comparison
+	$(PY) -m pip install --quiet '.[bench]' || echo "libigl not installable: peer rows skipped"
+	$(PY) bench/bench_embree.py
+
+lint: $(STAMP) ## ruff check (if installed)
+	$(PY) -m ruff check aobake tests bench
+
+coverage: $(STAMP) ## Tests with the JIT off so kernel bodies are measured
+	NUMBA_DISABLE_JIT=1 $(PY) -m pytest -q -x -k "not slow"
+
+clean: ## Remove outputs and caches (keeps .venv)
+	rm -rf out .pytest_cache .hypothesis
+	find . -name __pycache__ -prune -exec rm -rf {} +

@@ -1,0 +1,5 @@
+"""``python -m aobake`` runs the command-line interface."""
+
+from .cli import main
+
+main()

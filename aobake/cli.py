@@ -1,0 +1,118 @@
+"""Command-line interface: options, progress UI, exit codes and the one error boundary.
+
+Imports only click at module level so ``aobake --help`` is instant; each command imports
+the library inside its body. ``ao`` written by every command is accessibility 1 - A
+(1 = fully open).
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import click
+
+from .errors import AobakeError
+
+AO_CONVENTION = "The attribute `ao` holds 1 - A, the ambient factor (1 = fully open, 0 = fully occluded)."
+
+
+class AobakeGroup(click.Group):
+    """Turns :class:`AobakeError` into ``Error: <file>: <problem>`` and exit code 1."""
+
+    def invoke(self, ctx):
+        try:
+            return super().invoke(ctx)
+        except AobakeError as exc:
+            raise click.ClickException(str(exc)) from None
+
+
+def common_options(f):
+    """--seed, --threads, --quiet: shared by every command that computes."""
+    f = click.option("--quiet", "-q", is_flag=True, help="No progress bar or summary on stderr.")(f)
+    f = click.option(
+        "--threads", type=click.IntRange(min=1), default=None, help="Worker threads [default: all cores]."
+    )(f)
+    f = click.option(
+        "--seed", type=click.IntRange(0, 2**63 - 1), default=0, show_default=True, help="Random seed."
+    )(f)
+    return f
+
+
+@click.group(cls=AobakeGroup, context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(package_name="aobake")
+def main():
+    """Bake per-vertex ambient occlusion into meshes.
+
+    The attribute `ao` holds 1 - A, the ambient factor (1 = fully open, 0 = fully
+    occluded): the value renderers multiply by.
+    """
+
+
+@main.command()
+@click.argument("mesh", type=click.Path(path_type=Path))
+@click.option(
+    "-o", "--output", required=True, type=click.Path(path_type=Path), help="Output .ply, .usda, .usdc or .usd."
+)
+@click.option(
+    "--method", type=click.Choice(["embree"]), default="embree", show_default=True, help="AO method."
+)
+@click.option("--rays", type=click.IntRange(min=1), default=256, show_default=True, help="Rays per vertex (max).")
+@click.option(
+    "--measure",
+    type=click.Choice(["cosine", "uniform"]),
+    default="cosine",
+    show_default=True,
+    help="cosine: 1/pi int V cos; uniform: solid-angle fraction.",
+)
+@click.option(
+    "--max-distance", type=click.FloatRange(min=0, min_open=True), default=None, help="Ray length limit (mesh units)."
+)
+@click.option(
+    "--bias",
+    type=click.FloatRange(min=0),
+    default=None,
+    help="Ray origin offset (mesh units) [default: from float precision and edge length].",
+)
+@click.option(
+    "--tolerance",
+    type=click.FloatRange(min=0, min_open=True),
+    default=None,
+    help="Adaptive: stop a vertex once its 95% interval half-width is below this.",
+)
+@click.option("--color", is_flag=True, help="Also write ao as grey vertex colours.")
+@click.option("--up", type=click.Choice(["Y", "Z"]), default="Y", show_default=True, help="USD stage up axis.")
+@click.option(
+    "--meters-per-unit", type=click.FloatRange(min=0, min_open=True), default=1.0, show_default=True, help="USD metersPerUnit."
+)
+@common_options
+def bake(mesh, output, method, rays, measure, max_distance, bias, tolerance, color, up, meters_per_unit, seed, threads, quiet):
+    """Bake AO of MESH into OUTPUT as the per-vertex attribute `ao` (1 = open).
+
+    MESH: PLY, OBJ, STL, OFF, GLB/glTF or USD. Vertex count and order are kept.
+    """
+    from .pipeline import bake_file
+    from .progress import make_progress
+
+    report = bake_file(
+        mesh,
+        output,
+        method=method,
+        color=color,
+        up_axis=up,
+        meters_per_unit=meters_per_unit,
+        progress=make_progress(quiet),
+        n_rays=rays,
+        measure=measure,
+        max_distance=max_distance,
+        bias=bias,
+        seed=seed,
+        tolerance=tolerance,
+        threads=threads,
+    )
+    if not quiet:
+        click.echo(report.summary(), err=True)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

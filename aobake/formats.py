@@ -1,0 +1,165 @@
+"""Pick the writer or reader for a bake file from its suffix (PLY, USD, or a ``.npy`` array).
+
+Arrays in, files out: computes no AO. Imports numpy, aobake's ``errors``,
+``io_common``, ``io_ply`` and ``io_usd`` (which imports ``pxr`` only when called).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from pathlib import Path
+
+import numpy as np
+
+from .errors import InputError, NumericalError
+from .io_common import output_kind
+from .io_ply import read_ao_ply, write_ply
+from .io_usd import read_ao_usd, write_usd
+
+#: Suffixes :func:`read_bake` understands, and the reader family for each.
+READ_SUFFIXES = {
+    ".ply": "ply",
+    ".usd": "usd",
+    ".usda": "usd",
+    ".usdc": "usd",
+    ".usdz": "usd",
+    ".npy": "npy",
+}
+
+
+def write_bake(
+    path: str | Path,
+    surface,
+    ao,
+    *,
+    color: bool = False,
+    up_axis: str = "Y",
+    meters_per_unit: float = 1.0,
+    custom_data: Mapping[str, str | float | int | bool] | None = None,
+) -> None:
+    """Write a baked surface to ``path``, choosing PLY or USD from its suffix.
+
+    PLY gets the whole surface concatenated (positions, triangles, normals, ``ao``)
+    with ``custom_data`` as ``comment aobake <key>=<value>`` header lines; PLY has no
+    up axis or unit, so ``up_axis`` and ``meters_per_unit`` apply to USD only. USD gets
+    one mesh per part with its original polygons (see :func:`aobake.io_usd.write_usd`).
+
+    Parameters
+    ----------
+    path : str or Path
+        ``.ply``, ``.usda``, ``.usdc`` or ``.usd``; written atomically.
+    surface : aobake.mesh.Surface
+        ``positions (n, 3) float64``, ``faces (m, 3) int64``, ``normals (n, 3) float64``
+        and ``parts``.
+    ao : (n,) float in [0, 1]
+        Accessibility 1 - A (1 = fully open), one value per surface vertex.
+    color : bool
+        Also write ``ao`` as grey vertex colours.
+    up_axis : {"Y", "Z"}
+        USD stage ``upAxis``.
+    meters_per_unit : float
+        USD stage ``metersPerUnit``.
+    custom_data : mapping of str to str, float, int or bool, optional
+        Provenance (method, parameters, seed, version).
+
+    Raises
+    ------
+    FormatError
+        Unsupported suffix (checked first).
+    NumericalError
+        ``ao`` is not ``(n,)`` for the surface's ``n`` vertices, non-finite, or
+        outside [0, 1].
+    InputError, OutputError, ValueError
+        From the writer (bad topology, unwritable directory, bad options).
+    """
+    kind = output_kind(path)
+    ao = np.asarray(ao)
+    if ao.shape != (surface.n_vertices,):
+        raise NumericalError(
+            f"{Path(path).name}: ao has shape {ao.shape} "
+            f"but the surface has {surface.n_vertices} vertices"
+        )
+    if kind == "ply":
+        comments = (
+            [] if custom_data is None else [f"aobake {k}={v}" for k, v in dict(custom_data).items()]
+        )
+        write_ply(
+            path,
+            surface.positions,
+            surface.faces,
+            ao,
+            normals=surface.normals,
+            color=color,
+            comments=comments,
+        )
+    else:
+        write_usd(
+            path,
+            surface,
+            ao,
+            color=color,
+            up_axis=up_axis,
+            meters_per_unit=meters_per_unit,
+            custom_data=custom_data,
+        )
+
+
+def read_bake(path: str | Path, *, n_vertices: int | None = None) -> np.ndarray:
+    """Read per-vertex ``ao`` from a ``.ply``, ``.usd``/``.usda``/``.usdc``/``.usdz`` or ``.npy``.
+
+    Parameters
+    ----------
+    path : str or Path
+        A bake written by aobake (or another tool's PLY with ``ao``/``quality``, a USD
+        stage with ``primvars:ao``), or a 1-D float ``.npy`` array.
+    n_vertices : int, optional
+        Expected number of values (the mesh's vertex count); checked when given.
+
+    Returns
+    -------
+    ao : (n,) float64
+        One value per vertex, in file order (USD: all meshes in traversal order).
+
+    Raises
+    ------
+    InputError
+        Missing or unreadable file, unsupported suffix, no ``ao`` data, an ``.npy``
+        that is not a 1-D float array, or a count different from ``n_vertices``.
+    """
+    path = Path(path)
+    kind = READ_SUFFIXES.get(path.suffix.lower())
+    if kind is None:
+        supported = ", ".join(sorted(READ_SUFFIXES))
+        raise InputError(
+            path, f"unsupported AO file suffix {path.suffix or '(none)'!r}; use one of {supported}"
+        )
+    if kind == "ply":
+        ao = read_ao_ply(path)
+    elif kind == "usd":
+        ao = read_ao_usd(path)
+    else:
+        ao = _read_npy(path)
+    if n_vertices is not None and ao.shape[0] != n_vertices:
+        raise InputError(
+            path, f"has {ao.shape[0]} ao values but the mesh has {n_vertices} vertices"
+        )
+    return ao
+
+
+def _read_npy(path: Path) -> np.ndarray:
+    """A 1-D float ``.npy`` array as float64 (no pickles)."""
+    try:
+        array = np.load(path, allow_pickle=False)
+    except FileNotFoundError:
+        raise InputError(path, "file not found") from None
+    except IsADirectoryError:
+        raise InputError(path, "is a directory, not an .npy file") from None
+    except (OSError, ValueError, EOFError) as exc:
+        raise InputError(path, f"not a readable .npy array ({exc})") from None
+    if not isinstance(array, np.ndarray):
+        raise InputError(path, "not a single .npy array")
+    if array.ndim != 1 or not np.issubdtype(array.dtype, np.floating):
+        raise InputError(
+            path, f"expected a 1-D float array, got shape {array.shape} dtype {array.dtype}"
+        )
+    return array.astype(np.float64)

@@ -1,0 +1,90 @@
+"""Atomic writes, output-suffix checks and the finite/range guard run before any write.
+
+Computes nothing; imports numpy and aobake.errors only.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import tempfile
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+
+from .errors import FormatError, NumericalError, OutputError
+
+#: Output suffixes and the writer family that handles them.
+BAKE_SUFFIXES = {".ply": "ply", ".usda": "usd", ".usdc": "usd", ".usd": "usd"}
+
+
+def output_kind(path: str | Path) -> str:
+    """Return ``"ply"`` or ``"usd"`` for an output path, or raise :class:`FormatError`.
+
+    Called before any computation so a typo in ``-o`` fails fast.
+    """
+    suffix = Path(path).suffix.lower()
+    try:
+        return BAKE_SUFFIXES[suffix]
+    except KeyError:
+        supported = ", ".join(sorted(BAKE_SUFFIXES))
+        raise FormatError(
+            f"{Path(path).name}: unsupported output suffix {suffix or '(none)'!r}; use one of {supported}"
+        ) from None
+
+
+def check_output_dir(path: str | Path) -> None:
+    """Raise :class:`OutputError` if the directory of ``path`` is missing or unwritable."""
+    parent = Path(path).resolve().parent
+    if not parent.is_dir():
+        raise OutputError(f"{Path(path).name}: output directory {parent} does not exist")
+    if not os.access(parent, os.W_OK):
+        raise OutputError(f"{Path(path).name}: output directory {parent} is not writable")
+    if Path(path).is_dir():
+        raise OutputError(f"{Path(path).name}: output path is a directory")
+
+
+def check_ao(ao: np.ndarray, name: str = "ao") -> np.ndarray:
+    """Return ``ao`` as float32 after checking it is finite and within [0, 1].
+
+    Raises :class:`NumericalError` otherwise: NaN or inf never reaches a file.
+    """
+    ao = np.asarray(ao)
+    bad = ~np.isfinite(ao)
+    if bad.any():
+        raise NumericalError(f"{name}: {int(bad.sum())} non-finite values; refusing to write")
+    if ao.size and (ao.min() < 0.0 or ao.max() > 1.0):
+        raise NumericalError(
+            f"{name}: values outside [0, 1] (min {ao.min():.6g}, max {ao.max():.6g}); refusing to write"
+        )
+    return ao.astype(np.float32)
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+@contextlib.contextmanager
+def atomic_write(path: str | Path) -> Iterator[Path]:
+    """Yield a temporary path next to ``path``; rename it over ``path`` on success.
+
+    The temporary name keeps the suffix (USD picks its format from it). On any exception,
+    including KeyboardInterrupt, the temporary file is removed and nothing is left behind.
+    """
+    path = Path(path)
+    check_output_dir(path)
+    fd, tmp_name = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix, dir=path.resolve().parent)
+    os.close(fd)
+    tmp = Path(tmp_name)
+    try:
+        yield tmp
+        # mkstemp creates 0600; give the output the mode a plain open() would have.
+        os.chmod(tmp, 0o666 & ~_umask())
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            tmp.unlink()
+        raise

@@ -1,0 +1,384 @@
+"""USD output (one ``UsdGeom.Mesh`` per part with a vertex primvar ``ao``) and reading it back.
+
+Arrays in, files out: computes no AO. ``pxr`` is imported inside the functions only, so
+importing this module stays cheap (see STYLE 3.3).
+
+Layer caching: USD keeps every open layer in a process-wide registry keyed by its
+path, and ``Usd.Stage.Open`` returns the registered layer without looking at the disk.
+The writer therefore authors on the temporary path, saves, and drops every reference
+to the stage (its prims do not keep it alive) before ``atomic_write`` renames the file,
+so no layer stays registered under the temporary name. A layer that some caller still
+holds for the *output* path is stale after the rename; :func:`read_ao_usd` detects that
+case and reads the file through an anonymous layer, so a bake written twice to the same
+path in one process is always read back as written.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import traceback
+from collections.abc import Mapping
+from pathlib import Path
+
+import numpy as np
+
+from .errors import InputError, NumericalError, OutputError
+from .io_common import atomic_write, check_ao
+
+#: Largest index a USD ``int[]`` (int32) can hold.
+INT32_MAX = int(np.iinfo(np.int32).max)
+
+#: Default prim every aobake USD file has; meshes are its children, in part order.
+ROOT_PATH = "/Root"
+
+#: customData key under which the caller's metadata is stored on /Root and each mesh.
+CUSTOM_DATA_KEY = "aobake"
+
+#: Primvar name for the per-vertex accessibility.
+AO_PRIMVAR = "ao"
+
+UP_AXES = ("Y", "Z")
+
+
+def write_usd(
+    path: str | Path,
+    surface,
+    ao,
+    *,
+    color: bool = False,
+    up_axis: str = "Y",
+    meters_per_unit: float = 1.0,
+    custom_data: Mapping[str, str | float | int | bool] | None = None,
+) -> None:
+    """Write a USD stage with one ``UsdGeom.Mesh`` per part and a vertex primvar ``ao``.
+
+    The stage's default prim is the Xform ``/Root``; each part of ``surface`` becomes a
+    Mesh child named after the part (made a valid identifier, de-duplicated with
+    ``_1``, ``_2``...). Each mesh has float32 ``points``, its original polygon topology
+    (``faceVertexCounts``/``faceVertexIndices``, so quads stay quads), vertex
+    ``normals``, ``extent``, ``subdivisionScheme = "none"``, the primvar ``ao``
+    (``float[]``, interpolation ``vertex``) and, with ``color``, ``displayColor``
+    (vertex, grey = ao). ``upAxis`` and ``metersPerUnit`` are always authored (an
+    unauthored ``metersPerUnit`` means centimeters).
+
+    Parameters
+    ----------
+    path : str or Path
+        ``.usda`` (text), ``.usdc`` or ``.usd`` (binary crate). Written atomically:
+        on any failure neither it nor a temporary file is left behind.
+    surface : aobake.mesh.Surface
+        Positions ``(n, 3) float64``, normals ``(n, 3) float64`` and ``parts``; each
+        part's vertex range becomes one mesh. Points and normals are stored as float32.
+    ao : (n,) float in [0, 1]
+        Accessibility 1 - A (1 = fully open) for all parts concatenated; stored float32.
+    color : bool
+        Also author ``primvars:displayColor`` (vertex interpolation, grey = ao).
+    up_axis : {"Y", "Z"}
+        Stage ``upAxis``.
+    meters_per_unit : float
+        Stage ``metersPerUnit`` (> 0); 1.0 means the mesh units are meters.
+    custom_data : mapping of str to str, float, int or bool, optional
+        Recorded as ``customData["aobake"]`` on ``/Root`` and on every mesh (method,
+        parameters, seed, aobake version...).
+
+    Raises
+    ------
+    NumericalError
+        ``ao`` is non-finite, outside [0, 1], or not one value per vertex (checked
+        before anything is opened).
+    InputError
+        A part's topology is inconsistent (counts < 3, sum of counts different from
+        the number of indices, indices outside the part).
+    OutputError
+        The directory is missing or unwritable, a part has more vertices than int32
+        indices address, or USD fails to write the file.
+    ValueError
+        Bad ``up_axis``, ``meters_per_unit`` or ``custom_data``.
+    """
+    path = Path(path)
+    ao32 = check_ao(ao)
+    n = surface.n_vertices
+    if ao32.shape != (n,):
+        raise NumericalError(
+            f"{path.name}: ao has shape {ao32.shape} but the surface has {n} vertices"
+        )
+    up = str(up_axis).upper()
+    if up not in UP_AXES:
+        raise ValueError(f"up_axis must be 'Y' or 'Z', got {up_axis!r}")
+    mpu = float(meters_per_unit)
+    if not (math.isfinite(mpu) and mpu > 0.0):
+        raise ValueError(
+            f"meters_per_unit must be a positive finite number, got {meters_per_unit!r}"
+        )
+    data = _clean_custom_data(custom_data)
+    meshes = _mesh_arrays(path, surface, ao32)
+
+    try:
+        with atomic_write(path) as tmp:
+            _author_stage(
+                tmp,
+                meshes,
+                out_name=path.name,
+                color=color,
+                up_axis=up,
+                meters_per_unit=mpu,
+                custom_data=data,
+            )
+    except OSError as exc:
+        raise OutputError(f"{path.name}: cannot write ({exc.strerror or exc})") from exc
+
+
+def read_ao_usd(path: str | Path) -> np.ndarray:
+    """Read the ``primvars:ao`` of every mesh in a USD file, concatenated.
+
+    Meshes are visited in stage traversal order (depth first, file order), which is
+    the writer's part order, so the result lines up with the baked vertices.
+
+    Parameters
+    ----------
+    path : str or Path
+        A ``.usda``/``.usdc``/``.usd``/``.usdz`` file.
+
+    Returns
+    -------
+    ao : (n,) float64
+        Flattened (de-indexed) ``ao`` values of all meshes, one per point.
+
+    Raises
+    ------
+    InputError
+        The file is missing or not a USD stage, it has no mesh with an ``ao`` primvar,
+        a mesh lacks one while others have it, or the primvar is not one value per
+        point.
+    """
+    path = Path(path)
+    if not path.exists():
+        raise InputError(path, "file not found")
+    if path.is_dir():
+        raise InputError(path, "is a directory, not a USD file")
+    from pxr import Sdf, Usd, UsdGeom
+
+    stage = _open_fresh(path, Sdf, Usd)
+    parts: list[np.ndarray] = []
+    missing: list[str] = []
+    for prim in Usd.PrimRange.Stage(stage, Usd.TraverseInstanceProxies()):
+        if not prim.IsA(UsdGeom.Mesh):
+            continue
+        mesh = UsdGeom.Mesh(prim)
+        primvar = UsdGeom.PrimvarsAPI(prim).GetPrimvar(AO_PRIMVAR)
+        if not primvar or not primvar.HasValue():
+            missing.append(str(prim.GetPath()))
+            continue
+        values = primvar.ComputeFlattened()
+        points = mesh.GetPointsAttr().Get()
+        n_points = 0 if points is None else len(points)
+        if values is None:
+            missing.append(str(prim.GetPath()))
+            continue
+        values = np.asarray(values, dtype=np.float64).reshape(-1)
+        interp = primvar.GetInterpolation()
+        if interp not in (UsdGeom.Tokens.vertex, UsdGeom.Tokens.varying) or values.size != n_points:
+            raise InputError(
+                path,
+                f"{prim.GetPath()}: primvar 'ao' has {values.size} {interp} values "
+                f"but the mesh has {n_points} points; expected one per vertex",
+            )
+        parts.append(values)
+    if not parts:
+        raise InputError(path, "no mesh with a primvar 'ao' in the stage")
+    if missing:
+        raise InputError(path, f"{len(missing)} meshes have no primvar 'ao' (first: {missing[0]})")
+    return np.concatenate(parts)
+
+
+def _open_fresh(path: Path, Sdf, Usd):
+    """Open ``path`` as a stage whose root layer reflects the file on disk now.
+
+    A layer already registered for the path (someone holds a stage on it) may predate
+    the file, so it is read through an anonymous layer instead of the registry.
+    """
+    try:
+        if Sdf.Layer.Find(str(path.resolve())) is not None:
+            layer = Sdf.Layer.OpenAsAnonymous(str(path.resolve()))
+            stage = None if layer is None else Usd.Stage.Open(layer)
+        else:
+            stage = Usd.Stage.Open(str(path.resolve()))
+    except Exception as exc:  # pxr raises Tf.ErrorException (not importable by name everywhere)
+        # Tf errors read "Error in '<C++ function>' at line N in file F : '<what>'"; keep <what>.
+        found = re.findall(r"'([^']*)'", str(exc))
+        what = found[-1].replace(f"@{path.resolve()}@", "").strip() if found else ""
+        raise InputError(path, f"not a readable USD file ({what or type(exc).__name__})") from None
+    if stage is None:
+        raise InputError(path, "not a readable USD file")
+    return stage
+
+
+def _clean_custom_data(custom_data) -> dict:
+    """Check ``custom_data`` maps str to str, float, int or bool; return plain Python values."""
+    if custom_data is None:
+        return {}
+    out = {}
+    for key, value in dict(custom_data).items():
+        if not isinstance(key, str) or not key:
+            raise ValueError(f"custom_data keys must be non-empty strings, got {key!r}")
+        if isinstance(value, np.generic):
+            value = value.item()
+        if isinstance(value, bool | str):
+            out[key] = value
+        elif isinstance(value, int):
+            if not -(2**63) <= value < 2**63:
+                raise ValueError(f"custom_data[{key!r}] = {value} does not fit in int64")
+            out[key] = value
+        elif isinstance(value, float):
+            out[key] = value
+        else:
+            raise ValueError(
+                f"custom_data[{key!r}] must be str, float, int or bool, got {type(value).__name__}"
+            )
+    return out
+
+
+def _mesh_arrays(path: Path, surface, ao32: np.ndarray) -> list[dict]:
+    """Per-part arrays ready for USD (float32 points/normals, int32 topology), validated."""
+    names = _unique_names([part.name for part in surface.parts])
+    positions = np.asarray(surface.positions)
+    normals = np.asarray(surface.normals)
+    meshes = []
+    for part, name in zip(surface.parts, names, strict=True):
+        vs, ve = int(part.vertex_start), int(part.vertex_stop)
+        k = ve - vs
+        if not 0 <= vs <= ve <= surface.n_vertices:
+            raise InputError(
+                surface.source, f"part {part.name!r}: vertex range [{vs}, {ve}) outside the surface"
+            )
+        if k > INT32_MAX:
+            raise OutputError(
+                f"{path.name}: part {part.name!r} has {k} vertices, "
+                "more than USD int32 indices address"
+            )
+        counts = np.asarray(part.face_vertex_counts, dtype=np.int64).reshape(-1)
+        indices = np.asarray(part.face_vertex_indices, dtype=np.int64).reshape(-1)
+        if counts.size and counts.min() < 3:
+            raise InputError(
+                surface.source,
+                f"part {part.name!r}: {int((counts < 3).sum())} faces have fewer than 3 corners",
+            )
+        if int(counts.sum()) != indices.size:
+            raise InputError(
+                surface.source,
+                f"part {part.name!r}: face counts sum to {int(counts.sum())} "
+                f"but there are {indices.size} indices",
+            )
+        bad = (indices < 0) | (indices >= k)
+        if bad.any():
+            raise InputError(
+                surface.source,
+                f"part {part.name!r}: {int(bad.sum())} face corners reference "
+                f"a vertex outside its {k} vertices",
+            )
+        with np.errstate(over="ignore"):
+            points = np.ascontiguousarray(positions[vs:ve], dtype=np.float32)
+        if not np.isfinite(points).all():
+            raise OutputError(
+                f"{path.name}: part {part.name!r} has coordinates that overflow float32"
+            )
+        meshes.append(
+            {
+                "name": name,
+                "points": points,
+                "normals": np.ascontiguousarray(normals[vs:ve], dtype=np.float32),
+                "counts": counts.astype(np.int32),
+                "indices": indices.astype(np.int32),
+                "ao": np.ascontiguousarray(ao32[vs:ve]),
+            }
+        )
+    return meshes
+
+
+def _unique_names(names: list[str]) -> list[str]:
+    """Valid, distinct USD prim names for the parts, in order (``mesh``, ``mesh_1``...)."""
+    from pxr import Tf
+
+    used: set[str] = set()
+    out = []
+    for raw in names:
+        base = Tf.MakeValidIdentifier(str(raw)) if raw else "mesh"
+        name, k = base, 0
+        while name in used:
+            k += 1
+            name = f"{base}_{k}"
+        used.add(name)
+        out.append(name)
+    return out
+
+
+def _author_stage(
+    tmp: Path, meshes: list[dict], *, out_name, color, up_axis, meters_per_unit, custom_data
+) -> None:
+    """Create, fill and save a new stage at ``tmp``; keep no reference to it afterwards.
+
+    Everything USD lives in this frame, so the stage and its layer are released (and
+    leave the layer registry) when it returns or raises, before the rename.
+    """
+    from pxr import Sdf, Usd, UsdGeom, Vt
+
+    try:
+        stage = Usd.Stage.CreateNew(str(tmp))
+    except Exception as exc:  # Tf.ErrorException
+        found = re.findall(r"'([^']*)'", str(exc))
+        what = found[-1] if found else type(exc).__name__
+        raise OutputError(f"{out_name}: USD cannot create the layer ({what})") from None
+    if stage is None:
+        raise OutputError(f"{out_name}: USD cannot create the layer")
+    try:
+        UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y if up_axis == "Y" else UsdGeom.Tokens.z)
+        UsdGeom.SetStageMetersPerUnit(stage, meters_per_unit)
+        root = UsdGeom.Xform.Define(stage, ROOT_PATH).GetPrim()
+        stage.SetDefaultPrim(root)
+        if custom_data:
+            root.SetCustomDataByKey(CUSTOM_DATA_KEY, custom_data)
+        for arrays in meshes:
+            _author_mesh(
+                stage, f"{ROOT_PATH}/{arrays['name']}", arrays, color, custom_data, Sdf, UsdGeom, Vt
+            )
+        if not stage.GetRootLayer().Save():
+            raise OutputError(f"{out_name}: USD failed to save the layer")
+    except BaseException as exc:
+        # The frames below this one (_author_mesh, pxr callbacks) hold the stage as an
+        # argument, and the traceback keeps them alive; clear their locals so the layer
+        # is released now rather than whenever the caller drops the exception.
+        if exc.__traceback__ is not None and exc.__traceback__.tb_next is not None:
+            traceback.clear_frames(exc.__traceback__.tb_next)
+        raise
+    finally:
+        # Drop the last strong reference here, so the layer leaves the registry and
+        # releases its file before atomic_write renames or removes it.
+        del stage
+
+
+def _author_mesh(
+    stage, prim_path: str, arrays: dict, color: bool, custom_data: dict, Sdf, UsdGeom, Vt
+) -> None:
+    """Define one polygonal Mesh with points, topology, normals, extent and the ``ao`` primvar."""
+    mesh = UsdGeom.Mesh.Define(stage, prim_path)
+    points = Vt.Vec3fArray.FromNumpy(arrays["points"])
+    mesh.CreatePointsAttr(points)
+    mesh.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(arrays["counts"]))
+    mesh.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(arrays["indices"]))
+    mesh.CreateNormalsAttr(Vt.Vec3fArray.FromNumpy(arrays["normals"]))
+    mesh.SetNormalsInterpolation(UsdGeom.Tokens.vertex)
+    mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
+    if len(points):
+        mesh.CreateExtentAttr(UsdGeom.PointBased.ComputeExtent(points))
+    primvars = UsdGeom.PrimvarsAPI(mesh)
+    ao_primvar = primvars.CreatePrimvar(
+        AO_PRIMVAR, Sdf.ValueTypeNames.FloatArray, UsdGeom.Tokens.vertex
+    )
+    ao_primvar.Set(Vt.FloatArray.FromNumpy(arrays["ao"]))
+    if color:
+        grey = np.repeat(arrays["ao"][:, None], 3, axis=1)
+        display = mesh.CreateDisplayColorPrimvar(UsdGeom.Tokens.vertex)
+        display.Set(Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(grey, dtype=np.float32)))
+    if custom_data:
+        mesh.GetPrim().SetCustomDataByKey(CUSTOM_DATA_KEY, custom_data)

@@ -1,0 +1,96 @@
+"""Ray generation and hit counting for the Monte Carlo AO estimator.
+
+Serial ``nogil`` kernels: the caller runs one per worker thread, each on its own chunk
+of vertices, next to Embree's own (GIL-free) traversal of that chunk.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from ..constants import FASTMATH
+from . import rng, warps
+
+#: ``measure`` codes shared with the wrapper.
+COSINE = 0
+UNIFORM = 1
+
+
+@njit(cache=True, fastmath=FASTMATH, error_model="numpy", nogil=True)
+def generate_rays(origins, normals, keys, vertex_index, j0, j1, mode, out_org, out_dir):
+    """Fill rays j0..j1-1 of every vertex in ``vertex_index``, vertex-major.
+
+    Parameters
+    ----------
+    origins : (n, 3) float32
+        Offset ray origins in the scene's recentred frame.
+    normals : (n, 3) float64
+        Unit normals; a zero row samples the whole sphere (no hemisphere is defined).
+    keys : (n,) uint64
+        Per-vertex random keys (hash of seed and vertex index).
+    vertex_index : (k,) int64
+        Vertices of this chunk.
+    j0, j1 : int
+        Sample indices to generate, the same for every vertex of the chunk.
+    mode : int
+        ``measure + 2 * (not stratified)``: 0 cosine, 1 uniform hemisphere; +2 for plain
+        random numbers instead of the Owen-scrambled Sobol sequence.
+    out_org, out_dir : (k * (j1 - j0), 3) float32
+        Written in full.
+    """
+    per = j1 - j0
+    measure = mode % 2
+    stratified = mode < 2
+    for a in range(vertex_index.shape[0]):
+        v = vertex_index[a]
+        nx, ny, nz = normals[v, 0], normals[v, 1], normals[v, 2]
+        has_normal = nx != 0.0 or ny != 0.0 or nz != 0.0
+        key = keys[v]
+        for s in range(per):
+            j = j0 + s
+            if stratified:
+                u0, u1 = rng.scrambled_sobol2(j, key)
+            else:
+                u0, u1 = rng.random2(j, key)
+            if not has_normal:
+                dx, dy, dz = warps.square_to_uniform_sphere(u0, u1)
+            else:
+                if measure == COSINE:
+                    x, y, z = warps.square_to_cosine_hemisphere(u0, u1)
+                else:
+                    x, y, z = warps.square_to_uniform_hemisphere(u0, u1)
+                dx, dy, dz = warps.to_world(x, y, z, nx, ny, nz)
+            r = a * per + s
+            out_org[r, 0] = origins[v, 0]
+            out_org[r, 1] = origins[v, 1]
+            out_org[r, 2] = origins[v, 2]
+            out_dir[r, 0] = dx
+            out_dir[r, 1] = dy
+            out_dir[r, 2] = dz
+
+
+@njit(cache=True, nogil=True)
+def count_hits(ids, per, vertex_index, hits):
+    """Add each vertex's number of occluded rays (``ids != -1``) to ``hits[vertex]``.
+
+    ``ids`` holds ``per`` consecutive results per vertex of ``vertex_index``; each vertex
+    appears once per chunk, so chunks on other threads never write the same slot.
+    """
+    for a in range(vertex_index.shape[0]):
+        c = 0
+        base = a * per
+        for s in range(per):
+            if ids[base + s] != -1:
+                c += 1
+        hits[vertex_index[a]] += c
+
+
+@njit(cache=True)
+def vertex_keys(seed, n):
+    """(n,) uint64 per-vertex keys: a hash of (seed, vertex index)."""
+    out = np.zeros(n, dtype=np.uint64)
+    s = np.uint64(seed)
+    for i in range(n):
+        out[i] = rng.hash2(s, np.uint64(i))
+    return out

@@ -1,0 +1,121 @@
+"""Mesh connectivity kernels."""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True, inline="always")
+def _find(parent, i):
+    while parent[i] != i:
+        parent[i] = parent[parent[i]]  # path halving
+        i = parent[i]
+    return i
+
+
+@njit(cache=True, inline="always")
+def _union(parent, a, b):
+    a = _find(parent, a)
+    b = _find(parent, b)
+    if a < b:
+        parent[b] = a
+    elif b < a:
+        parent[a] = b
+
+
+@njit(cache=True)
+def shells(faces, order, run_start, normals):
+    """Label vertices by shell: connected through faces, or through coincident positions
+    whose normals do not face apart.
+
+    Parameters
+    ----------
+    faces : (m, 3) int64
+    order : (n,) int64
+        Vertex indices sorted so coincident positions are consecutive.
+    run_start : (r + 1,) int64
+        Runs of coincident positions are ``order[run_start[k]:run_start[k + 1]]``.
+    normals : (n, 3) float64
+        Unit or zero normals.
+
+    Returns
+    -------
+    labels : (n,) int64
+        Shell ids 0..C-1 by first appearance.
+
+    Notes
+    -----
+    Split vertices (hard edges, UV seams) have normals at most 90 degrees apart and join
+    one shell. A vertex of one object resting exactly on a vertex of another (a sphere's
+    pole on a floor vertex) has normals facing apart and stays separate, so the contact
+    is still found; so do the two sides of a two-sided sheet.
+    """
+    n = normals.shape[0]
+    parent = np.arange(n)
+    for f in range(faces.shape[0]):
+        _union(parent, faces[f, 0], faces[f, 1])
+        _union(parent, faces[f, 0], faces[f, 2])
+    for k in range(run_start.shape[0] - 1):
+        lo, hi = run_start[k], run_start[k + 1]
+        for a in range(lo, hi):
+            i = order[a]
+            for b in range(a + 1, hi):
+                j = order[b]
+                d = normals[i, 0] * normals[j, 0] + normals[i, 1] * normals[j, 1] + normals[i, 2] * normals[j, 2]
+                if d >= -1e-6:
+                    _union(parent, i, j)
+    return _relabel(parent)
+
+
+@njit(cache=True)
+def _relabel(parent):
+    n = parent.shape[0]
+    labels = np.full(n, -1, dtype=np.int64)
+    root_label = np.full(n, -1, dtype=np.int64)
+    count = 0
+    for i in range(n):
+        r = _find(parent, i)
+        if root_label[r] < 0:
+            root_label[r] = count
+            count += 1
+        labels[i] = root_label[r]
+    return labels
+
+
+@njit(cache=True)
+def connected_components(faces, n):
+    """Label the vertices 0..n-1 by the connected component of the face graph.
+
+    Parameters
+    ----------
+    faces : (m, 3) int64
+    n : int
+
+    Returns
+    -------
+    labels : (n,) int64
+        Component ids 0..C-1, numbered by first appearance; a vertex in no face is a
+        component of its own.
+    """
+    parent = np.arange(n)
+    for f in range(faces.shape[0]):
+        a = _find(parent, faces[f, 0])
+        for k in range(1, 3):
+            b = _find(parent, faces[f, k])
+            if a != b:
+                if a < b:
+                    parent[b] = a
+                else:
+                    parent[a] = b
+                    a = b
+    labels = np.full(n, -1, dtype=np.int64)
+    root_label = np.full(n, -1, dtype=np.int64)
+    count = 0
+    for i in range(n):
+        r = _find(parent, i)
+        if root_label[r] < 0:
+            root_label[r] = count
+            count += 1
+        labels[i] = root_label[r]
+    return labels

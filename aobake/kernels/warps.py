@@ -1,0 +1,98 @@
+"""Scalar warps from the unit square to directions, with their pdfs, and orthonormal frames.
+
+Warps are pure functions of uniform numbers (pbrt-v4, mitsuba3 naming); frames follow
+Duff et al., "Building an Orthonormal Basis, Revisited" (JCGT 2017): branch-free and
+continuous except at n_z = -1's sign switch, exact for +-z.
+"""
+
+from __future__ import annotations
+
+import math
+
+from numba import njit
+
+from ..constants import FASTMATH
+
+INV_PI = 1.0 / math.pi
+
+
+@njit(cache=True, fastmath=FASTMATH, inline="always")
+def square_to_uniform_disk_concentric(u0, u1):
+    """Shirley-Chiu concentric map: area-preserving, keeps strata compact."""
+    a = 2.0 * u0 - 1.0
+    b = 2.0 * u1 - 1.0
+    if a == 0.0 and b == 0.0:
+        return 0.0, 0.0
+    if a * a > b * b:
+        r = a
+        phi = (math.pi / 4.0) * (b / a)
+    else:
+        r = b
+        phi = (math.pi / 2.0) - (math.pi / 4.0) * (a / b)
+    return r * math.cos(phi), r * math.sin(phi)
+
+
+@njit(cache=True, fastmath=FASTMATH, inline="always")
+def square_to_cosine_hemisphere(u0, u1):
+    """Cosine-weighted direction about +z (Malley's method on the concentric disk)."""
+    x, y = square_to_uniform_disk_concentric(u0, u1)
+    z = math.sqrt(max(0.0, 1.0 - x * x - y * y))
+    return x, y, z
+
+
+@njit(cache=True, fastmath=FASTMATH, inline="always")
+def cosine_hemisphere_pdf(z):
+    """pdf of :func:`square_to_cosine_hemisphere` per steradian at cos(theta) = z."""
+    return max(z, 0.0) * INV_PI
+
+
+@njit(cache=True, fastmath=FASTMATH, inline="always")
+def square_to_uniform_hemisphere(u0, u1):
+    """Uniform direction on the hemisphere about +z."""
+    z = u0
+    r = math.sqrt(max(0.0, 1.0 - z * z))
+    phi = 2.0 * math.pi * u1
+    return r * math.cos(phi), r * math.sin(phi), z
+
+
+@njit(cache=True, fastmath=FASTMATH, inline="always")
+def uniform_hemisphere_pdf(z):
+    """pdf of :func:`square_to_uniform_hemisphere` (1/2pi above the horizon)."""
+    return 0.5 * INV_PI if z >= 0.0 else 0.0
+
+
+@njit(cache=True, fastmath=FASTMATH, inline="always")
+def square_to_uniform_sphere(u0, u1):
+    """Uniform direction on the whole sphere."""
+    z = 1.0 - 2.0 * u0
+    r = math.sqrt(max(0.0, 1.0 - z * z))
+    phi = 2.0 * math.pi * u1
+    return r * math.cos(phi), r * math.sin(phi), z
+
+
+@njit(cache=True, fastmath=FASTMATH, inline="always")
+def uniform_sphere_pdf():
+    """pdf of :func:`square_to_uniform_sphere` (1/4pi)."""
+    return 0.25 * INV_PI
+
+
+@njit(cache=True, fastmath=FASTMATH, inline="always")
+def frame(nx, ny, nz):
+    """Two unit tangents (t, b) with (t, b, n) right-handed and orthonormal, n unit."""
+    sign = 1.0 if nz >= 0.0 else -1.0
+    a = -1.0 / (sign + nz)
+    b = nx * ny * a
+    tx, ty, tz = 1.0 + sign * nx * nx * a, sign * b, -sign * nx
+    bx, by, bz = b, sign + ny * ny * a, -ny
+    return tx, ty, tz, bx, by, bz
+
+
+@njit(cache=True, fastmath=FASTMATH, inline="always")
+def to_world(x, y, z, nx, ny, nz):
+    """Rotate local (x, y, z) about +z into the frame whose z axis is n."""
+    tx, ty, tz, bx, by, bz = frame(nx, ny, nz)
+    return (
+        x * tx + y * bx + z * nx,
+        x * ty + y * by + z * ny,
+        x * tz + y * bz + z * nz,
+    )

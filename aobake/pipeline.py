@@ -1,0 +1,163 @@
+"""End-to-end flows used by the CLI and by Python users: load -> compute -> check -> write.
+
+Parses no command-line options and never exits the process.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from . import __version__
+from ._types import AOArray
+from .errors import NumericalError
+from .io_common import check_output_dir, output_kind
+from .mesh import Surface
+from .progress import Progress
+
+METHODS = ("embree",)
+
+
+@dataclass(frozen=True)
+class BakeReport:
+    """What a bake did, for the one-line summary and for scripts.
+
+    Attributes
+    ----------
+    source, output : str
+    method : str
+    n_vertices : int
+    n_rays : int
+        Rays cast in total (0 for methods that cast none).
+    seconds : float
+        Compute time (loading and writing excluded).
+    contacts : int
+        Vertices whose ray origin was mirrored at a contact (embree).
+    options : dict
+    """
+
+    source: str
+    output: str
+    method: str
+    n_vertices: int
+    n_rays: int
+    seconds: float
+    contacts: int = 0
+    options: dict = field(default_factory=dict)
+
+    def summary(self) -> str:
+        """One line: vertices, rays, seconds, rays per second."""
+        text = f"{self.source}: {self.n_vertices} vertices, {self.method}"
+        if self.n_rays:
+            rate = self.n_rays / self.seconds if self.seconds > 0 else float("inf")
+            text += f", {self.n_rays / 1e6:.3f} M rays in {self.seconds:.2f} s ({rate / 1e6:.2f} M rays/s)"
+        else:
+            text += f" in {self.seconds:.2f} s"
+        if self.contacts:
+            text += f", {self.contacts} contact vertices"
+        return text + f" -> {self.output}"
+
+
+def as_surface(mesh: Any) -> Surface:
+    """A :class:`Surface` from a path, a ``trimesh.Trimesh``/``Scene``, or a Surface."""
+    if isinstance(mesh, Surface):
+        return mesh
+    from .mesh import load_mesh, mesh_from_trimesh
+
+    if isinstance(mesh, (str, Path)):
+        return load_mesh(mesh)
+    return mesh_from_trimesh(mesh)
+
+
+def _compute(surface: Surface, method: str, options: dict, progress: Progress | None):
+    if method == "embree":
+        from .raytrace import embree_ao
+
+        result = embree_ao(surface, progress=progress, **options)
+        return result.ao, result.n_rays, result.contacts
+    raise ValueError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
+
+
+def bake(mesh: Any, method: str = "embree", *, progress: Progress | None = None, **options) -> AOArray:
+    """Per-vertex ambient occlusion of a mesh, as accessibility (1 = open).
+
+    Parameters
+    ----------
+    mesh : str, Path, trimesh.Trimesh, trimesh.Scene or Surface
+        What to bake; a multi-mesh scene is one occluding scene.
+    method : {"embree"}
+        ``"embree"``: Monte Carlo ray casting (the reference).
+    progress : Progress, optional
+    **options
+        Passed to the method, e.g. ``n_rays``, ``measure``, ``max_distance``, ``bias``,
+        ``seed``, ``tolerance``, ``threads`` for :func:`aobake.raytrace.embree_ao`.
+
+    Returns
+    -------
+    ao : (n,) float64 in [0, 1]
+        1 - A per input vertex, in input order.
+
+    Examples
+    --------
+    >>> import trimesh, aobake
+    >>> ao = aobake.bake(trimesh.creation.box(), n_rays=16)
+    >>> bool((ao == 1.0).all())  # a convex body does not occlude itself
+    True
+    """
+    surface = as_surface(mesh)
+    ao, _, _ = _compute(surface, method, options, progress)
+    return ao
+
+
+def bake_file(
+    source: str | Path,
+    output: str | Path,
+    *,
+    method: str = "embree",
+    color: bool = False,
+    up_axis: str | None = None,
+    meters_per_unit: float | None = None,
+    progress: Progress | None = None,
+    **options,
+) -> BakeReport:
+    """Load ``source``, bake it, write ``output`` (.ply, .usda, .usdc or .usd) atomically.
+
+    The output suffix and directory are checked before loading or computing, so a typo
+    fails at once; nothing is written unless the whole bake succeeds.
+
+    Returns
+    -------
+    BakeReport
+    """
+    from .formats import write_bake
+
+    output_kind(output)
+    check_output_dir(output)
+    surface = as_surface(source)
+    t0 = time.perf_counter()
+    ao, n_rays, contacts = _compute(surface, method, options, progress)
+    seconds = time.perf_counter() - t0
+    if ao.shape != (surface.n_vertices,):
+        raise NumericalError(f"{surface.source}: {method} returned {ao.shape} values for {surface.n_vertices} vertices")
+    custom = {"method": method, "version": __version__, "source": Path(str(source)).name}
+    custom.update({k: ("none" if v is None else v) for k, v in options.items() if k not in ("threads", "chunk_rays")})
+    write_kwargs = {"color": color, "custom_data": custom}
+    if up_axis is not None:
+        write_kwargs["up_axis"] = up_axis
+    if meters_per_unit is not None:
+        write_kwargs["meters_per_unit"] = meters_per_unit
+    write_bake(output, surface, np.asarray(ao), **write_kwargs)
+    return BakeReport(
+        source=Path(str(source)).name,
+        output=str(output),
+        method=method,
+        n_vertices=surface.n_vertices,
+        n_rays=n_rays,
+        seconds=seconds,
+        contacts=contacts,
+        options=dict(options),
+    )

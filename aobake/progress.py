@@ -1,0 +1,82 @@
+"""Progress reporting: library code calls ``progress.advance(n)``; the CLI picks the bar.
+
+A bar is drawn on stderr only when stderr is a terminal and ``--quiet`` is off, so logs
+and CI output stay clean. Imports only the standard library.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from typing import Protocol, TextIO
+
+
+class Progress(Protocol):
+    """What library functions may call on a progress object."""
+
+    def start(self, total: int, label: str) -> None: ...
+    def advance(self, n: int) -> None: ...
+    def finish(self) -> None: ...
+
+
+class NullProgress:
+    """Reports nothing (the library default)."""
+
+    def start(self, total: int, label: str) -> None:
+        pass
+
+    def advance(self, n: int) -> None:
+        pass
+
+    def finish(self) -> None:
+        pass
+
+
+class StderrProgress:
+    """A one-line bar redrawn on a terminal at most ten times a second."""
+
+    def __init__(self, stream: TextIO | None = None, width: int = 30):
+        self.stream = sys.stderr if stream is None else stream
+        self.width = width
+        self.total = 0
+        self.done = 0
+        self.label = ""
+        self.t0 = 0.0
+        self._last = 0.0
+
+    def start(self, total: int, label: str) -> None:
+        self.total = max(int(total), 1)
+        self.done = 0
+        self.label = label
+        self.t0 = self._last = time.perf_counter()
+        self._draw()
+
+    def advance(self, n: int) -> None:
+        self.done = min(self.done + int(n), self.total)
+        now = time.perf_counter()
+        if now - self._last >= 0.1 or self.done == self.total:
+            self._last = now
+            self._draw()
+
+    def finish(self) -> None:
+        self.done = self.total
+        self._draw()
+        self.stream.write("\n")
+        self.stream.flush()
+
+    def _draw(self) -> None:
+        frac = self.done / self.total
+        filled = int(frac * self.width)
+        elapsed = time.perf_counter() - self.t0
+        eta = elapsed * (1.0 - frac) / frac if frac > 0 else 0.0
+        bar = "#" * filled + "-" * (self.width - filled)
+        self.stream.write(f"\r{self.label} [{bar}] {100 * frac:5.1f}% {elapsed:6.1f}s eta {eta:5.1f}s")
+        self.stream.flush()
+
+
+def make_progress(quiet: bool, stream: TextIO | None = None) -> Progress:
+    """A bar on stderr when it is a terminal and not ``quiet``, else :class:`NullProgress`."""
+    stream = sys.stderr if stream is None else stream
+    if quiet or not getattr(stream, "isatty", lambda: False)():
+        return NullProgress()
+    return StderrProgress(stream)

@@ -1,0 +1,43 @@
+"""Slow, obviously correct references, independent of Embree and of the kernels."""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def ray_hits_any(origins, directions, triangles, tfar=np.inf, eps=1e-12) -> np.ndarray:
+    """Moller-Trumbore in float64: (k,) bool, does ray k hit any triangle at t in [0, tfar]?
+
+    Parameters
+    ----------
+    origins, directions : (k, 3) float
+    triangles : (m, 3, 3) float
+    """
+    o = np.asarray(origins, dtype=np.float64)
+    d = np.asarray(directions, dtype=np.float64)
+    v0, v1, v2 = (np.asarray(triangles, dtype=np.float64)[:, i] for i in range(3))
+    e1, e2 = v1 - v0, v2 - v0
+    hit = np.zeros(len(o), dtype=bool)
+    for start in range(0, len(o), 256):
+        oo, dd = o[start : start + 256, None, :], d[start : start + 256, None, :]
+        p = np.cross(dd, e2[None])
+        det = np.einsum("kmj,mj->km", p, e1)
+        ok = np.abs(det) > eps
+        inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
+        s = oo - v0[None]
+        u = np.einsum("kmj,kmj->km", s, p) * inv
+        q = np.cross(s, e1[None])
+        v = np.einsum("kmj,kmj->km", dd, q) * inv
+        t = np.einsum("kmj,mj->km", q, e2) * inv
+        h = ok & (u >= 0) & (v >= 0) & (u + v <= 1) & (t >= 0) & (t <= tfar)
+        hit[start : start + 256] = h.any(axis=1)
+    return hit
+
+
+def reference_ao(surface, origins, directions, tfar=np.inf) -> np.ndarray:
+    """AO (1 - hits / N) from given per-vertex origins (n, 3) and directions (n, N, 3)."""
+    n, n_rays, _ = directions.shape
+    tris = surface.positions[surface.faces]
+    org = np.repeat(np.asarray(origins, dtype=np.float64), n_rays, axis=0)
+    hits = ray_hits_any(org, directions.reshape(-1, 3), tris, tfar)
+    return 1.0 - hits.reshape(n, n_rays).mean(axis=1)

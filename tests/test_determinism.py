@@ -1,0 +1,31 @@
+"""Same inputs and seed give bit-identical results, whatever the threads and chunking."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import shapes
+from aobake.raytrace import embree_ao
+
+
+@pytest.fixture(scope="module")
+def scene():
+    s, _ = shapes.sphere_on_ground(0.5, 3, gap=0.0, cells=10)
+    return s
+
+
+def test_same_seed_same_bits(scene):
+    a = embree_ao(scene, n_rays=64, seed=5).ao
+    b = embree_ao(scene, n_rays=64, seed=5).ao
+    np.testing.assert_array_equal(a, b)
+    assert not np.array_equal(a, embree_ao(scene, n_rays=64, seed=6).ao)
+
+
+@pytest.mark.parametrize("tolerance", [None, 0.05])
+def test_threads_and_chunks_do_not_change_bits(scene, tolerance):
+    base = embree_ao(scene, n_rays=128, seed=1, threads=1, tolerance=tolerance)
+    for threads, chunk in [(2, 1 << 20), (1, 1000), (2, 777), (3, 64)]:
+        other = embree_ao(scene, n_rays=128, seed=1, threads=threads, chunk_rays=chunk, tolerance=tolerance)
+        np.testing.assert_array_equal(base.ao, other.ao)
+        np.testing.assert_array_equal(base.rays, other.rays)

@@ -1,0 +1,127 @@
+"""Warps, frames and sample sets: spot values, distributions, stratification."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from aobake.kernels import rng, warps
+from aobake.sampling import sample_directions, unit_square_samples
+
+
+def test_concentric_map_spot_values():
+    assert warps.square_to_uniform_disk_concentric(0.5, 0.5) == (0.0, 0.0)
+    x, y = warps.square_to_uniform_disk_concentric(1.0, 0.5)
+    np.testing.assert_allclose((x, y), (1.0, 0.0), atol=1e-15)
+    x, y = warps.square_to_uniform_disk_concentric(0.5, 1.0)
+    np.testing.assert_allclose((x, y), (0.0, 1.0), atol=1e-15)
+
+
+@pytest.mark.parametrize("warp", [warps.square_to_cosine_hemisphere, warps.square_to_uniform_hemisphere])
+def test_hemisphere_warps_unit_and_upper(warp):
+    u = unit_square_samples(3, 7, 1024)
+    d = np.array([warp(a, b) for a, b in u])
+    np.testing.assert_allclose(np.linalg.norm(d, axis=1), 1.0, atol=1e-12)
+    assert (d[:, 2] >= 0.0).all()
+
+
+def _binned_uniformity(values: np.ndarray, bins: int) -> None:
+    """Counts of uniform values in equal bins sit within 5 binomial sigmas."""
+    counts = np.histogram2d(values[:, 0], values[:, 1], bins=bins, range=[[0, 1], [0, 1]])[0].ravel()
+    n = values.shape[0]
+    p = 1.0 / bins**2
+    sigma = math.sqrt(n * p * (1 - p))
+    assert np.abs(counts - n * p).max() < 5 * sigma
+
+
+def test_cosine_hemisphere_distribution():
+    # For cosine-weighted directions (cos^2 theta, phi / 2pi) is uniform on the unit square.
+    rs = np.random.default_rng(0).random((20000, 2))
+    d = np.array([warps.square_to_cosine_hemisphere(a, b) for a, b in rs])
+    phi = (np.arctan2(d[:, 1], d[:, 0]) / (2 * np.pi)) % 1.0
+    _binned_uniformity(np.c_[d[:, 2] ** 2, phi], 8)
+
+
+def test_uniform_hemisphere_distribution():
+    # For uniform directions (cos theta, phi / 2pi) is uniform on the unit square.
+    rs = np.random.default_rng(1).random((20000, 2))
+    d = np.array([warps.square_to_uniform_hemisphere(a, b) for a, b in rs])
+    phi = (np.arctan2(d[:, 1], d[:, 0]) / (2 * np.pi)) % 1.0
+    _binned_uniformity(np.c_[d[:, 2], phi], 8)
+
+
+def test_pdfs_integrate_to_one():
+    # Riemann sum over the hemisphere in (cos theta, phi): d omega = d(cos) d(phi).
+    z = (np.arange(2000) + 0.5) / 2000
+    np.testing.assert_allclose(sum(warps.cosine_hemisphere_pdf(c) for c in z) / 2000 * 2 * np.pi, 1.0, rtol=1e-6)
+    assert warps.uniform_hemisphere_pdf(0.3) * 2 * np.pi == pytest.approx(1.0)
+    assert warps.uniform_sphere_pdf() * 4 * np.pi == pytest.approx(1.0)
+
+
+unit_vectors = st.tuples(
+    st.floats(-1, 1, allow_nan=False), st.floats(-1, 1, allow_nan=False), st.floats(-1, 1, allow_nan=False)
+).filter(lambda v: 1e-3 < math.sqrt(sum(c * c for c in v)))
+
+
+@given(unit_vectors)
+def test_frame_is_orthonormal(v):
+    n = np.array(v) / np.linalg.norm(v)
+    tx, ty, tz, bx, by, bz = warps.frame(*n)
+    m = np.array([[tx, ty, tz], [bx, by, bz], n])
+    np.testing.assert_allclose(m @ m.T, np.eye(3), atol=1e-12)
+    assert np.linalg.det(m) == pytest.approx(1.0, abs=1e-12)
+
+
+@pytest.mark.parametrize("n", [(0, 0, 1), (0, 0, -1), (1e-9, 0, -1), (0, 1e-12, 1), (1, 0, 0)])
+def test_frame_axis_cases(n):
+    n = np.array(n, dtype=float) / np.linalg.norm(n)
+    tx, ty, tz, bx, by, bz = warps.frame(*n)
+    m = np.array([[tx, ty, tz], [bx, by, bz], n])
+    np.testing.assert_allclose(m @ m.T, np.eye(3), atol=1e-12)
+
+
+def test_sobol_prefixes_are_stratified():
+    # Every power-of-two prefix of the scrambled (0,2)-sequence puts exactly one point
+    # in each cell of every elementary 2^a x 2^b grid with a + b = m.
+    u = unit_square_samples(11, 5, 256)
+    for m in (2, 4, 6, 8):
+        pts = u[: 2**m]
+        for a in range(m + 1):
+            b = m - a
+            cells = np.floor(pts[:, 0] * 2**a).astype(int) * 2**b + np.floor(pts[:, 1] * 2**b).astype(int)
+            assert np.bincount(cells, minlength=2**m).max() == 1
+
+
+def test_scrambles_differ_between_vertices_and_seeds():
+    a = unit_square_samples(0, 0, 16)
+    assert not np.array_equal(a, unit_square_samples(0, 1, 16))
+    assert not np.array_equal(a, unit_square_samples(1, 0, 16))
+    np.testing.assert_array_equal(a, unit_square_samples(0, 0, 16))
+
+
+def test_scrambled_points_are_uniform_across_vertices():
+    # Owen scrambling randomises each point uniformly: point 0 over many keys.
+    pts = np.array([unit_square_samples(0, v, 1)[0] for v in range(4000)])
+    _binned_uniformity(pts, 4)
+
+
+def test_reverse_bits():
+    assert rng.reverse_bits32(np.uint64(1)) == np.uint64(0x80000000)
+    assert rng.reverse_bits32(np.uint64(0x80000000)) == np.uint64(1)
+    assert rng.reverse_bits32(np.uint64(0xF0)) == np.uint64(0x0F000000)
+
+
+def test_sample_directions_follow_normals():
+    normals = np.array([[0, 0, 1.0], [1.0, 0, 0], [0, -0.6, 0.8], [0, 0, 0]])
+    d = sample_directions(normals, 64, seed=2)
+    assert d.shape == (4, 64, 3)
+    cos = np.einsum("vkj,vj->vk", d.astype(np.float64), normals)
+    assert (cos[:3] >= -1e-6).all()
+    # zero normal: whole sphere, both hemispheres used
+    assert (d[3, :, 2] > 0).any() and (d[3, :, 2] < 0).any()
+    # chunking of sample indices does not change directions
+    np.testing.assert_array_equal(d[:, 16:32], sample_directions(normals, 16, seed=2, start=16))
