@@ -39,7 +39,9 @@ class Part:
     face_vertex_counts : (k,) int64
         Original polygon sizes, for writers that keep the input topology (USD).
     face_vertex_indices : (sum(counts),) int64
-        Original polygon corners, indices local to the part (0 = ``vertex_start``).
+        Original polygon corners, indices local to the part (0 = ``vertex_start``),
+        counter-clockwise about the outside like ``faces`` (corner order reversed where
+        the source was a USD ``leftHanded`` mesh or its transform mirrors).
     prim_path : str or None
         Source USD prim path, when the input was USD.
     """
@@ -75,6 +77,10 @@ class Surface:
         The output meshes, in file order.
     source : str
         Where the surface came from (file name), used in messages.
+    metadata : dict
+        Facts read from the file: ``"format"`` (``"PLY"``, ``"USD"``...) and, where the
+        format defines them, ``"up_axis"`` (``"Y"``/``"Z"``) and ``"meters_per_unit"``
+        (USD stage metrics; glTF is always Y up, meters). Empty for array input.
     """
 
     positions: FloatArray
@@ -93,7 +99,9 @@ class Surface:
         return int(self.faces.shape[0])
 
 
-def face_normals_and_areas(positions: FloatArray, faces: IndexArray) -> tuple[FloatArray, FloatArray]:
+def face_normals_and_areas(
+    positions: FloatArray, faces: IndexArray
+) -> tuple[FloatArray, FloatArray]:
     """Unit face normals and areas from 0.5 |e1 x e2| (never Heron: it goes NaN on needles).
 
     Returns
@@ -132,7 +140,9 @@ def angle_weighted_normals(positions: FloatArray, faces: IndexArray) -> FloatArr
         la = np.linalg.norm(a, axis=1)
         lb = np.linalg.norm(b, axis=1)
         denom = la * lb
-        cos = np.divide(np.einsum("ij,ij->i", a, b), denom, out=np.zeros_like(denom), where=denom > 0)
+        cos = np.divide(
+            np.einsum("ij,ij->i", a, b), denom, out=np.zeros_like(denom), where=denom > 0
+        )
         angle = np.arccos(np.clip(cos, -1.0, 1.0))
         np.add.at(out, faces[:, k], fn * angle[:, None])
     return normalize_rows(out)
@@ -217,8 +227,12 @@ def surface_from_arrays(
     if normals is not None:
         normals = np.asarray(normals, dtype=np.float64)
         if normals.shape != positions.shape:
-            raise InputError(source, f"normals have shape {normals.shape}, positions {positions.shape}")
-    raw = _RawPart(name, positions, faces, normals, np.full(len(faces), 3), faces.reshape(-1).copy())
+            raise InputError(
+                source, f"normals have shape {normals.shape}, positions {positions.shape}"
+            )
+    raw = _RawPart(
+        name, positions, faces, normals, np.full(len(faces), 3), faces.reshape(-1).copy()
+    )
     return _assemble([raw], source)
 
 
@@ -248,7 +262,9 @@ def validate_arrays(positions: FloatArray, faces: IndexArray, source: str | Path
     bad = ~np.isfinite(positions).all(axis=1)
     if bad.any():
         first = int(np.flatnonzero(bad)[0])
-        raise InputError(source, f"{int(bad.sum())} vertices have NaN or inf coordinates (first: vertex {first})")
+        raise InputError(
+            source, f"{int(bad.sum())} vertices have NaN or inf coordinates (first: vertex {first})"
+        )
 
 
 def _check_index_range(n: int, faces, source: str | Path, what: str = "faces") -> None:
@@ -272,10 +288,14 @@ def _check_index_range(n: int, faces, source: str | Path, what: str = "faces") -
         n_rows = int(out.any(axis=1).sum())
         values = faces[out]
     worst = int(values.max()) if (values >= n).any() else int(values.min())
-    raise InputError(source, f"{n_rows} {what} reference vertex {worst} but the mesh has {n} vertices")
+    raise InputError(
+        source, f"{n_rows} {what} reference vertex {worst} but the mesh has {n} vertices"
+    )
 
 
-def warn_missing_normals(normals: FloatArray, positions: FloatArray, faces: IndexArray, source: str) -> None:
+def warn_missing_normals(
+    normals: FloatArray, positions: FloatArray, faces: IndexArray, source: str
+) -> None:
     """Log a warning when referenced vertices have no defined normal.
 
     Such vertices still get a defined AO (see the methods); unreferenced vertices are
@@ -285,7 +305,11 @@ def warn_missing_normals(normals: FloatArray, positions: FloatArray, faces: Inde
     referenced[faces.reshape(-1)] = True
     missing = referenced & ~normals.any(axis=1)
     if missing.any():
-        log.warning("%s: %d vertices have no defined normal (degenerate faces around them)", source, int(missing.sum()))
+        log.warning(
+            "%s: %d vertices have no defined normal (degenerate faces around them)",
+            source,
+            int(missing.sum()),
+        )
 
 
 # --------------------------------------------------------------------------------------
@@ -370,7 +394,9 @@ def load_mesh(path: str | Path) -> Surface:
         raise InputError(path, "is a directory, not a mesh file")
     if fmt is None:
         supported = ", ".join(sorted(INPUT_FORMATS))
-        raise InputError(path, f"unsupported input suffix {path.suffix or '(none)'!r}; use one of {supported}")
+        raise InputError(
+            path, f"unsupported input suffix {path.suffix or '(none)'!r}; use one of {supported}"
+        )
     metadata: dict = {"format": fmt}
     try:
         if fmt == "USD":
@@ -434,7 +460,9 @@ def mesh_from_trimesh(obj: Any, *, source: str = "<memory>") -> Surface:
 def _reason(exc: BaseException) -> str:
     """A foreign exception's message on one short line (USD's Tf errors reduced to their text)."""
     text = str(exc)
-    tf_messages = re.findall(r"Error in '[^']*' at line \d+ in file [^:]* : '(.*?)'(?=\s*(?:Error in|$))", text, re.S)
+    tf_messages = re.findall(
+        r"Error in '[^']*' at line \d+ in file [^:]* : '(.*?)'(?=\s*(?:Error in|$))", text, re.S
+    )
     if tf_messages:
         text = tf_messages[0]
     text = " ".join(text.split()) or type(exc).__name__
@@ -458,11 +486,15 @@ def _assemble(raw: list[_RawPart], where: str | Path, metadata: dict | None = No
         log.info("%s: %d meshes without faces ignored", source, len(raw) - len(with_faces))
     for p in with_faces:
         _check_index_range(len(p.positions), p.faces, where)
-        _check_index_range(len(p.positions), (p.face_vertex_counts, p.face_vertex_indices), where, "polygons")
+        _check_index_range(
+            len(p.positions), (p.face_vertex_counts, p.face_vertex_indices), where, "polygons"
+        )
     positions = np.concatenate([p.positions for p in with_faces]).astype(np.float64, copy=False)
     offsets = np.cumsum([0] + [len(p.positions) for p in with_faces])
     face_offsets = np.cumsum([0] + [len(p.faces) for p in with_faces])
-    faces = np.concatenate([p.faces + off for p, off in zip(with_faces, offsets)]).astype(np.int64, copy=False)
+    faces = np.concatenate(
+        [p.faces + off for p, off in zip(with_faces, offsets[:-1], strict=True)]
+    ).astype(np.int64, copy=False)
     validate_arrays(positions, faces, where)
     normals = np.concatenate([_vertex_normals(p.positions, p.faces, p.normals) for p in with_faces])
     warn_missing_normals(normals, positions, faces, source)
@@ -479,10 +511,19 @@ def _assemble(raw: list[_RawPart], where: str | Path, metadata: dict | None = No
         )
         for i, p in enumerate(with_faces)
     )
-    return Surface(np.ascontiguousarray(positions), np.ascontiguousarray(faces), normals, parts, source, dict(metadata or {}))
+    return Surface(
+        np.ascontiguousarray(positions),
+        np.ascontiguousarray(faces),
+        normals,
+        parts,
+        source,
+        dict(metadata or {}),
+    )
 
 
-def _vertex_normals(positions: FloatArray, faces: IndexArray, given: FloatArray | None) -> FloatArray:
+def _vertex_normals(
+    positions: FloatArray, faces: IndexArray, given: FloatArray | None
+) -> FloatArray:
     """Unit normals: ``given`` where finite and non-zero, angle-weighted elsewhere.
 
     Returns
@@ -540,19 +581,23 @@ def _reverse_polygons(counts: IndexArray, indices: IndexArray) -> IndexArray:
 
 
 def _fan_triangulate(counts: IndexArray, indices: IndexArray) -> IndexArray:
-    """Triangles (m, 3) fanned from each polygon's first corner; polygons with < 3 corners dropped."""
+    """Triangles (m, 3) fanned from each polygon's first corner (< 3 corners: dropped)."""
     counts = np.asarray(counts, dtype=np.int64)
     indices = np.asarray(indices, dtype=np.int64)
     starts = np.cumsum(counts) - counts
     n_tri = np.maximum(counts - 2, 0)
     first = np.repeat(starts, n_tri)
     k = np.arange(int(n_tri.sum())) - np.repeat(np.cumsum(n_tri) - n_tri, n_tri) + 1
-    return np.stack([indices[first], indices[first + k], indices[first + k + 1]], axis=1).reshape(-1, 3)
+    return np.stack([indices[first], indices[first + k], indices[first + k + 1]], axis=1).reshape(
+        -1, 3
+    )
 
 
-def _decode_text(path: Path, data: bytes, fmt: str) -> str:
+def _decode_text(
+    path: Path, data: bytes, fmt: str, problem: str = "binary data, not a text file"
+) -> str:
     """Text of a text format, or :class:`InputError` when the bytes are binary."""
-    problem = f"cannot read as {fmt}: binary data, not a text file"
+    problem = f"cannot read as {fmt}: {problem}"
     if b"\x00" in data:
         raise InputError(path, problem)
     try:
@@ -578,8 +623,12 @@ def _read_with_trimesh(path: Path, data: bytes, fmt: str, metadata: dict) -> lis
         kwargs.update(merge_primitives=False, skip_materials=True)
         metadata.update(up_axis="Y", meters_per_unit=1.0)  # fixed by the glTF specification
     elif fmt == "STL" and not _is_binary_stl(data):
-        _decode_text(path, data, fmt)
-    elif fmt == "OFF" and not re.match(r"\s*(#[^\n]*\n\s*)*[A-Z]*OFF", _decode_text(path, data, fmt)):
+        _decode_text(
+            path, data, fmt, "neither binary (size does not match the triangle count) nor text"
+        )
+    elif fmt == "OFF" and not re.match(
+        r"\s*(#[^\n]*\n\s*)*[A-Z]*OFF", _decode_text(path, data, fmt)
+    ):
         raise InputError(path, "cannot read as OFF: missing 'OFF' header")
     if fmt == "glTF":
         # glTF may reference buffers next to it: load by path so the resolver finds them
@@ -590,8 +639,8 @@ def _read_with_trimesh(path: Path, data: bytes, fmt: str, metadata: dict) -> lis
     if fmt == "glTF":
         items = _gltf_file_order(path, data, scene, items)
     elif len(items) == 1:
-        node, matrix, geometry, _ = items[0]
-        items = [(path.stem, matrix, geometry, _)]
+        _, matrix, geometry, node = items[0]
+        items = [(path.stem, matrix, geometry, node)]
     return _raw_from_scene(scene, items)
 
 
@@ -601,7 +650,8 @@ def _is_binary_stl(data: bytes) -> bool:
 
 
 def _scene_items(scene) -> list[tuple[str, FloatArray, str, str]]:
-    """``(node, world matrix, geometry name, node)`` for every geometry node, in graph order."""
+    """``(part name, world matrix, geometry name, graph node)`` per geometry node, in graph
+    order; the part name starts as the node name."""
     items = []
     for node in scene.graph.nodes_geometry:
         matrix, geometry = scene.graph[node]
@@ -610,7 +660,7 @@ def _scene_items(scene) -> list[tuple[str, FloatArray, str, str]]:
 
 
 def _raw_from_scene(scene, items) -> list[_RawPart]:
-    """One part per (name, matrix, geometry) item that is a Trimesh; others count as vertices only."""
+    """One part per item whose geometry is a Trimesh; other geometry adds vertices only."""
     import trimesh
 
     raw = []
@@ -620,7 +670,16 @@ def _raw_from_scene(scene, items) -> list[_RawPart]:
             raw.append(_raw_from_trimesh(str(name), geometry, matrix))
         elif geometry is not None and getattr(geometry, "vertices", None) is not None:
             # point clouds and paths occlude nothing; kept only for the "no faces" count
-            raw.append(_RawPart(str(name), np.zeros((len(geometry.vertices), 3)), np.zeros((0, 3), dtype=np.int64), None, np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)))
+            raw.append(
+                _RawPart(
+                    str(name),
+                    np.zeros((len(geometry.vertices), 3)),
+                    np.zeros((0, 3), dtype=np.int64),
+                    None,
+                    np.zeros(0, dtype=np.int64),
+                    np.zeros(0, dtype=np.int64),
+                )
+            )
     return raw
 
 
@@ -639,7 +698,16 @@ def _raw_from_trimesh(name: str, mesh, matrix: FloatArray) -> _RawPart:
         if cached is not None and np.shape(cached) == positions.shape:
             normals = np.asarray(cached, dtype=np.float64)
     counts = np.full(len(faces), 3, dtype=np.int64)
-    return _transformed(name, positions, faces, normals, counts, faces.reshape(-1).copy(), matrix[:3, :3].T, matrix[:3, 3])
+    return _transformed(
+        name,
+        positions,
+        faces,
+        normals,
+        counts,
+        faces.reshape(-1).copy(),
+        matrix[:3, :3].T,
+        matrix[:3, 3],
+    )
 
 
 def _gltf_file_order(path: Path, data: bytes, scene, items):
@@ -656,7 +724,9 @@ def _gltf_file_order(path: Path, data: bytes, scene, items):
         scenes = header.get("scenes", [])
         roots = scenes[header.get("scene", 0)].get("nodes", []) if scenes else []
     except Exception:  # the order is a nicety; trimesh already read the file
-        log.debug("%s: glTF header not parsed, keeping trimesh's node order", path.name, exc_info=True)
+        log.debug(
+            "%s: glTF header not parsed, keeping trimesh's node order", path.name, exc_info=True
+        )
         return items
     preorder: dict[int, int] = {}
     stack = list(reversed(roots))
@@ -674,7 +744,7 @@ def _gltf_file_order(path: Path, data: bytes, scene, items):
     geometry_rank = {name: i for i, name in enumerate(scene.geometry)}
     parents = scene.graph.transforms.parents
     keyed = []
-    for rank, (node, matrix, geometry, _) in enumerate(items):
+    for rank, (_, matrix, geometry, node) in enumerate(items):
         name = node
         index = name_index.get(node)
         if index is None and parents.get(node) in name_index:
@@ -733,17 +803,25 @@ def _read_ply(path: Path, data: bytes) -> list[_RawPart]:
     Faces may mix polygon sizes; they keep their polygons (fan-triangulated for tracing).
     """
     fmt, elements, body = _ply_header(path, data)
-    values = _ply_ascii(path, data[body:], elements) if fmt == "ascii" else _ply_binary(path, data, body, elements, fmt)
+    values = (
+        _ply_ascii(path, data[body:], elements)
+        if fmt == "ascii"
+        else _ply_binary(path, data, body, elements, fmt)
+    )
     vertex = values.get("vertex", {})
     if not vertex:
         return []
     missing = [axis for axis in "xyz" if axis not in vertex]
     if missing:
         raise InputError(path, f"cannot read as PLY: vertex element lacks property {missing[0]!r}")
-    positions = np.column_stack([np.asarray(vertex[axis], dtype=np.float64).reshape(-1) for axis in "xyz"])
+    positions = np.column_stack(
+        [np.asarray(vertex[axis], dtype=np.float64).reshape(-1) for axis in "xyz"]
+    )
     normals = None
     if all(key in vertex for key in ("nx", "ny", "nz")):
-        normals = np.column_stack([np.asarray(vertex[key], dtype=np.float64).reshape(-1) for key in ("nx", "ny", "nz")])
+        normals = np.column_stack(
+            [np.asarray(vertex[key], dtype=np.float64).reshape(-1) for key in ("nx", "ny", "nz")]
+        )
     counts, corners = np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
     face = values.get("face", {})
     lists = [key for key, value in face.items() if isinstance(value, tuple)]
@@ -775,13 +853,19 @@ def _ply_header(path: Path, data: bytes) -> tuple[str, list[_PlyElement], int]:
             elif words[0] == "element":
                 elements.append(_PlyElement(words[1], int(words[2]), []))
             elif words[0] == "property" and words[1] == "list":
-                elements[-1].properties.append(_PlyProperty(words[4], _PLY_TYPES[words[3]], _PLY_TYPES[words[2]]))
+                elements[-1].properties.append(
+                    _PlyProperty(words[4], _PLY_TYPES[words[3]], _PLY_TYPES[words[2]])
+                )
             elif words[0] == "property":
                 elements[-1].properties.append(_PlyProperty(words[2], _PLY_TYPES[words[1]]))
             else:
                 raise ValueError(f"unexpected header line {line.strip()[:40]!r}")
         except (IndexError, KeyError, ValueError) as exc:
-            reason = str(exc) if isinstance(exc, ValueError) else f"bad header line {line.strip()[:40]!r}"
+            reason = (
+                str(exc)
+                if isinstance(exc, ValueError)
+                else f"bad header line {line.strip()[:40]!r}"
+            )
             raise InputError(path, f"cannot read as PLY: {reason}") from exc
     if fmt is None:
         raise InputError(path, "cannot read as PLY: header has no 'format' line")
@@ -797,10 +881,16 @@ def _ply_empty(element: _PlyElement) -> dict:
 
 
 def _ply_truncated(path: Path, element: _PlyElement) -> InputError:
-    return InputError(path, f"cannot read as PLY: file ends before its {element.count} {element.name} elements (truncated)")
+    return InputError(
+        path,
+        f"cannot read as PLY: file ends before its {element.count} {element.name} elements "
+        "(truncated)",
+    )
 
 
-def _ply_binary(path: Path, data: bytes, offset: int, elements: list[_PlyElement], fmt: str) -> dict:
+def _ply_binary(
+    path: Path, data: bytes, offset: int, elements: list[_PlyElement], fmt: str
+) -> dict:
     """``{element: {property: array or (counts, flat items)}}`` from a binary body."""
     endian = "<" if fmt == "binary_little_endian" else ">"
     out = {}
@@ -824,7 +914,11 @@ def _ply_binary_element(path, data, offset, element, endian):
             pos += np.dtype(prop.dtype).itemsize
             continue
         size = np.dtype(prop.count_dtype).itemsize
-        n = 0 if pos + size > len(data) else int(np.frombuffer(data, endian + prop.count_dtype, 1, pos)[0])
+        n = (
+            0
+            if pos + size > len(data)
+            else int(np.frombuffer(data, endian + prop.count_dtype, 1, pos)[0])
+        )
         fields += [(f"c{i}", endian + prop.count_dtype), (f"l{i}", endian + prop.dtype, (n,))]
         lengths.append((i, n))
         pos += size + n * np.dtype(prop.dtype).itemsize
@@ -838,7 +932,10 @@ def _ply_binary_element(path, data, offset, element, endian):
                     values[prop.name] = table[f"s{i}"]
                 else:
                     n = dict(lengths)[i]
-                    values[prop.name] = (np.full(count, n, dtype=np.int64), table[f"l{i}"].reshape(-1).astype(np.int64))
+                    values[prop.name] = (
+                        np.full(count, n, dtype=np.int64),
+                        table[f"l{i}"].reshape(-1).astype(np.int64),
+                    )
             return values, offset + count * row.itemsize
     elif not lengths:
         raise _ply_truncated(path, element)
@@ -856,7 +953,9 @@ def _ply_binary_element(path, data, offset, element, endian):
                 else:
                     (n,) = struct.unpack_from(endian + codes[prop.count_dtype], data, pos)
                     pos += np.dtype(prop.count_dtype).itemsize
-                    columns[i].extend(struct.unpack_from(f"{endian}{n}{codes[prop.dtype]}", data, pos))
+                    columns[i].extend(
+                        struct.unpack_from(f"{endian}{n}{codes[prop.dtype]}", data, pos)
+                    )
                     list_counts[i].append(n)
                     pos += n * np.dtype(prop.dtype).itemsize
     except struct.error as exc:
@@ -866,7 +965,10 @@ def _ply_binary_element(path, data, offset, element, endian):
         if prop.count_dtype is None:
             values[prop.name] = np.array(columns[i], dtype=prop.dtype)
         else:
-            values[prop.name] = (np.array(list_counts[i], dtype=np.int64), np.array(columns[i], dtype=np.int64))
+            values[prop.name] = (
+                np.array(list_counts[i], dtype=np.int64),
+                np.array(columns[i], dtype=np.int64),
+            )
     return values, pos
 
 
@@ -908,7 +1010,10 @@ def _ply_ascii_element(path, tokens, pos, element):
                 else:
                     n = int(table[0, starts[i]])
                     items = table[:, starts[i] + 1 : starts[i] + 1 + n]
-                    values[prop.name] = (np.full(count, n, dtype=np.int64), items.reshape(-1).astype(np.int64))
+                    values[prop.name] = (
+                        np.full(count, n, dtype=np.int64),
+                        items.reshape(-1).astype(np.int64),
+                    )
             return values, pos + count * width
     elif not lists:
         raise _ply_truncated(path, element)
@@ -1029,7 +1134,9 @@ def _obj_vertex_normals(n: int, corners, normal_index, table, source: str) -> Fl
     hits = np.bincount(v, minlength=n)
     first = np.full(n, -1, dtype=np.int64)
     first[v[::-1]] = k[::-1]
-    conflicting = int(((hits > 0) & (np.bincount(v, weights=(k != first[v]), minlength=n) > 0)).sum())
+    conflicting = int(
+        ((hits > 0) & (np.bincount(v, weights=(k != first[v]), minlength=n) > 0)).sum()
+    )
     if conflicting:
         log.info("%s: %d vertices have several vn; their normals are averaged", source, conflicting)
     normals[hits == 0] = np.nan
@@ -1052,7 +1159,9 @@ def _obj_parts(path, positions, normals, counts, corners, faces, objects) -> lis
     owner = np.repeat(np.arange(len(counts)), counts)
     corner_block = np.searchsorted(np.array(p_bounds[1:-1]), owner, side="right")
     vertex_block = np.searchsorted(np.array(v_bounds[1:-1]), corners, side="right")
-    empty = any(v_bounds[i] == v_bounds[i + 1] or p_bounds[i] == p_bounds[i + 1] for i in range(len(blocks)))
+    empty = any(
+        v_bounds[i] == v_bounds[i + 1] or p_bounds[i] == p_bounds[i + 1] for i in range(len(blocks))
+    )
     if empty or (corner_block != vertex_block).any():
         log.info("%s: OBJ objects share vertices; read as one part", path.name)
         return whole
@@ -1062,8 +1171,11 @@ def _obj_parts(path, positions, normals, counts, corners, faces, objects) -> lis
         v0, v1, p0, p1 = v_bounds[i], v_bounds[i + 1], p_bounds[i], p_bounds[i + 1]
         local = corners[corner_bounds[p0] : corner_bounds[p1]] - v0
         part_counts = counts[p0:p1]
+        part_faces = _fan_triangulate(part_counts, local)
+        if len(part_faces) == 0:
+            return whole  # a part without triangles would be dropped with its vertices
         part_normals = None if normals is None else normals[v0:v1]
-        raw.append(_RawPart(name, positions[v0:v1], _fan_triangulate(part_counts, local), part_normals, part_counts, local))
+        raw.append(_RawPart(name, positions[v0:v1], part_faces, part_normals, part_counts, local))
     return raw
 
 
@@ -1071,11 +1183,14 @@ def _obj_parts(path, positions, normals, counts, corners, faces, objects) -> lis
 
 
 def _read_usd(path: Path, metadata: dict) -> list[_RawPart]:
-    """Every visible, non-guide/proxy ``UsdGeom.Mesh`` (instance proxies included), in world space."""
+    """Every visible ``UsdGeom.Mesh`` in world space (instance proxies included; guide and
+    proxy purposes skipped)."""
     try:
         from pxr import Usd, UsdGeom
     except ImportError as exc:
-        raise InputError(path, "reading USD needs the usd-core package (pip install usd-core)") from exc
+        raise InputError(
+            path, "reading USD needs the usd-core package (pip install usd-core)"
+        ) from exc
 
     stage = Usd.Stage.Open(str(path))
     if stage is None:
@@ -1096,23 +1211,34 @@ def _read_usd(path: Path, metadata: dict) -> list[_RawPart]:
         if imageable.ComputePurpose() in skipped_purposes:
             continue
         raw.append(_usd_mesh_part(path, UsdGeom.Mesh(prim), time))
+    if not raw:
+        raise InputError(path, "no visible UsdGeom.Mesh in the stage")
     return raw
 
 
 def _usd_mesh_part(path: Path, mesh, time) -> _RawPart:
-    """One USD mesh: world points, fan triangles (holes dropped), original topology kept."""
+    """One USD mesh: world points, fan triangles (holes dropped), original polygons kept
+    (corner order reversed for ``leftHanded`` meshes so every part is right-handed)."""
     from pxr import UsdGeom
 
     prim = mesh.GetPrim()
     where = str(prim.GetPath())
     points = np.asarray(_usd_value(mesh.GetPointsAttr(), time, ()), dtype=np.float64).reshape(-1, 3)
-    counts = np.asarray(_usd_value(mesh.GetFaceVertexCountsAttr(), time, ()), dtype=np.int64).reshape(-1)
-    indices = np.asarray(_usd_value(mesh.GetFaceVertexIndicesAttr(), time, ()), dtype=np.int64).reshape(-1)
+    counts = np.asarray(
+        _usd_value(mesh.GetFaceVertexCountsAttr(), time, ()), dtype=np.int64
+    ).reshape(-1)
+    indices = np.asarray(
+        _usd_value(mesh.GetFaceVertexIndicesAttr(), time, ()), dtype=np.int64
+    ).reshape(-1)
     if (counts < 0).any() or counts.sum() != len(indices):
         raise InputError(
-            path, f"{where}: faceVertexCounts sum to {int(counts.sum())} but faceVertexIndices has {len(indices)} entries"
+            path,
+            f"{where}: faceVertexCounts sum to {int(counts.sum())} "
+            f"but faceVertexIndices has {len(indices)} entries",
         )
-    left_handed = mesh.GetOrientationAttr().Get(time) == UsdGeom.Tokens.leftHanded
+    if mesh.GetOrientationAttr().Get(time) == UsdGeom.Tokens.leftHanded:
+        # kept right-handed from here on, in the traced faces and in the part's topology
+        indices = _reverse_polygons(counts, indices)
     traced_counts, traced_indices = counts, indices
     holes = np.asarray(_usd_value(mesh.GetHoleIndicesAttr(), time, ()), dtype=np.int64).reshape(-1)
     if len(holes):
@@ -1120,12 +1246,20 @@ def _usd_mesh_part(path: Path, mesh, time) -> _RawPart:
         keep[holes[(holes >= 0) & (holes < len(counts))]] = False
         traced_indices = indices[np.repeat(keep, counts)]
         traced_counts = counts[keep]
-    if left_handed:
-        traced_indices = _reverse_polygons(traced_counts, traced_indices)
     faces = _fan_triangulate(traced_counts, traced_indices)
     normals = _usd_normals(mesh, time, len(points))
     matrix = np.array(UsdGeom.Xformable(prim).ComputeLocalToWorldTransform(time), dtype=np.float64)
-    return _transformed(prim.GetName(), points, faces, normals, counts, indices, matrix[:3, :3], matrix[3, :3], where)
+    return _transformed(
+        prim.GetName(),
+        points,
+        faces,
+        normals,
+        counts,
+        indices,
+        matrix[:3, :3],
+        matrix[3, :3],
+        where,
+    )
 
 
 def _usd_value(attribute, time, default):

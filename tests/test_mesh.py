@@ -10,6 +10,8 @@ import logging
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from aobake.errors import InputError
 from aobake.mesh import (
@@ -80,7 +82,9 @@ def write_off(path, positions, faces):
 
 
 def write_stl(path, positions, faces):
-    record = np.zeros(len(faces), dtype=[("normal", "<f4", 3), ("corners", "<f4", (3, 3)), ("attr", "<u2")])
+    record = np.zeros(
+        len(faces), dtype=[("normal", "<f4", 3), ("corners", "<f4", (3, 3)), ("attr", "<u2")]
+    )
     record["corners"] = positions[faces]
     path.write_bytes(b"\0" * 80 + np.uint32(len(faces)).tobytes() + record.tobytes())
     return path
@@ -109,7 +113,9 @@ def test_vertices_kept_exactly(tmp_path, suffix):
     assert np.isfinite(surface.normals).all()
     # no file normals: angle-weighted; vertex 6 (only in the zero-area face) and the
     # unreferenced vertices have none
-    np.testing.assert_allclose(surface.normals[[0, 1, 2, 3, 5]], np.tile([0.0, 0.0, 1.0], (5, 1)), atol=1e-15)
+    np.testing.assert_allclose(
+        surface.normals[[0, 1, 2, 3, 5]], np.tile([0.0, 0.0, 1.0], (5, 1)), atol=1e-15
+    )
     np.testing.assert_array_equal(surface.normals[[4, 6, 7]], np.zeros((3, 3)))
     assert surface.source == path.name
     (part,) = surface.parts
@@ -203,7 +209,9 @@ def write_polygon_ply(path, text=False, byte_order="<"):
     face["vertex_indices"] = [np.array(f, "i4") for f in ([0, 1, 2, 3], [1, 4, 2], [1, 4, 5, 2, 0])]
     face["flag"] = [7, 8, 9]
     edge = np.zeros(2, dtype=[("vertex1", "i4"), ("vertex2", "i4")])
-    elements = [PlyElement.describe(a, n) for a, n in ((vertex, "vertex"), (face, "face"), (edge, "edge"))]
+    elements = [
+        PlyElement.describe(a, n) for a, n in ((vertex, "vertex"), (face, "face"), (edge, "edge"))
+    ]
     PlyData(elements, text=text, byte_order=byte_order).write(str(path))
     return path
 
@@ -214,10 +222,54 @@ def test_ply_mixed_polygons(tmp_path, text, byte_order):
     surface = load_mesh(write_polygon_ply(tmp_path / "poly.ply", text, byte_order))
     assert surface.n_vertices == 6
     np.testing.assert_array_equal(surface.parts[0].face_vertex_counts, [4, 3, 5])
-    np.testing.assert_array_equal(surface.parts[0].face_vertex_indices, [0, 1, 2, 3, 1, 4, 2, 1, 4, 5, 2, 0])
+    np.testing.assert_array_equal(
+        surface.parts[0].face_vertex_indices, [0, 1, 2, 3, 1, 4, 2, 1, 4, 5, 2, 0]
+    )
     np.testing.assert_array_equal(
         surface.faces, [[0, 1, 2], [0, 2, 3], [1, 4, 2], [1, 4, 5], [1, 5, 2], [1, 2, 0]]
     )
+
+
+@st.composite
+def polygon_meshes(draw):
+    """Small meshes of mixed polygon sizes; coordinates exact in float32."""
+    n = draw(st.integers(1, 10))
+    coords = draw(st.lists(st.integers(-64, 64), min_size=3 * n, max_size=3 * n))
+    positions = np.array(coords, dtype=np.float64).reshape(n, 3) / 8.0
+    polygons = draw(
+        st.lists(st.lists(st.integers(0, n - 1), min_size=3, max_size=6), min_size=1, max_size=8)
+    )
+    return positions, polygons
+
+
+@settings(max_examples=40, deadline=None)
+@given(mesh=polygon_meshes(), kind=st.sampled_from(["binary", "big", "ascii", "obj"]))
+def test_polygon_files_round_trip(tmp_path_factory, mesh, kind):
+    from plyfile import PlyData, PlyElement
+
+    positions, polygons = mesh
+    path = tmp_path_factory.mktemp("poly") / ("m.obj" if kind == "obj" else "m.ply")
+    if kind == "obj":
+        lines = [f"v {x!r} {y!r} {z!r}" for x, y, z in positions.tolist()]
+        lines += ["f " + " ".join(str(i + 1) for i in poly) for poly in polygons]
+        path.write_text("\n".join(lines) + "\n")
+    else:
+        vertex = np.zeros(len(positions), dtype=[("x", "f4"), ("y", "f4"), ("z", "f4")])
+        for i, axis in enumerate("xyz"):
+            vertex[axis] = positions[:, i]
+        face = np.empty(len(polygons), dtype=[("vertex_indices", "O")])
+        face["vertex_indices"] = [np.array(poly, dtype="i4") for poly in polygons]
+        elements = [PlyElement.describe(vertex, "vertex"), PlyElement.describe(face, "face")]
+        order = ">" if kind == "big" else "<"
+        PlyData(elements, text=kind == "ascii", byte_order=order).write(str(path))
+    surface = load_mesh(path)
+    np.testing.assert_array_equal(surface.positions, positions)
+    (part,) = surface.parts
+    np.testing.assert_array_equal(part.face_vertex_counts, [len(poly) for poly in polygons])
+    np.testing.assert_array_equal(part.face_vertex_indices, np.concatenate(polygons))
+    fan = [[poly[0], poly[k], poly[k + 1]] for poly in polygons for k in range(1, len(poly) - 1)]
+    np.testing.assert_array_equal(surface.faces, fan)
+    assert np.isfinite(surface.normals).all()
 
 
 def test_ply_truncated_ascii(tmp_path):
@@ -225,7 +277,9 @@ def test_ply_truncated_ascii(tmp_path):
     path = write_ply(tmp_path / "cut.ply", POSITIONS, FACES, text=True)
     text = path.read_text()
     path.write_text(text[: text.index("end_header") + 40])
-    with pytest.raises(InputError, match=r"^cut.ply: cannot read as PLY: file ends before its 8 vertex elements"):
+    with pytest.raises(
+        InputError, match=r"^cut.ply: cannot read as PLY: file ends before its 8 vertex elements"
+    ):
         load_mesh(path)
 
 
@@ -237,7 +291,9 @@ def _two_mesh_scene():
 
     tri = trimesh.Trimesh([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]], process=False)
     quad = trimesh.Trimesh(
-        [[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [3, 3, 3]], [[0, 1, 2], [0, 2, 3]], process=False
+        [[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [3, 3, 3]],
+        [[0, 1, 2], [0, 2, 3]],
+        process=False,
     )
     # rotate 90 degrees about x (the normal +z becomes -y), then move by (10, 0, 0)
     matrix = trimesh.transformations.rotation_matrix(np.pi / 2, [1, 0, 0])
@@ -251,8 +307,18 @@ def _two_mesh_scene():
 def _check_two_mesh_surface(surface, matrix):
     assert [p.name for p in surface.parts] == ["moved", "still"]
     moved, still = surface.parts
-    assert (moved.vertex_start, moved.vertex_stop, moved.face_start, moved.face_stop) == (0, 5, 0, 2)
-    assert (still.vertex_start, still.vertex_stop, still.face_start, still.face_stop) == (5, 8, 2, 3)
+    assert (moved.vertex_start, moved.vertex_stop, moved.face_start, moved.face_stop) == (
+        0,
+        5,
+        0,
+        2,
+    )
+    assert (still.vertex_start, still.vertex_stop, still.face_start, still.face_stop) == (
+        5,
+        8,
+        2,
+        3,
+    )
     local = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [3, 3, 3]], float)
     world = local @ matrix[:3, :3].T + matrix[:3, 3]
     np.testing.assert_allclose(surface.positions[:5], world, atol=1e-6)
@@ -310,7 +376,7 @@ def write_gltf_hierarchy(path):
         "accessors": accessors,
         "bufferViews": views,
         "buffers": [{"byteLength": len(blob),
-                     "uri": "data:application/octet-stream;base64," + base64.b64encode(blob).decode()}],
+                     "uri": "data:;base64," + base64.b64encode(blob).decode()}],
     }  # fmt: skip
     path.write_text(json.dumps(document))
     return path
@@ -334,9 +400,13 @@ def test_glb_normals_rotated(tmp_path):
     import trimesh
 
     normals = np.tile([0.0, 0.0, 1.0], (3, 1))  # deliberately +z everywhere
-    tri = trimesh.Trimesh([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]], vertex_normals=normals, process=False)
+    tri = trimesh.Trimesh(
+        [[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]], vertex_normals=normals, process=False
+    )
     scene = trimesh.Scene()
-    scene.add_geometry(tri, node_name="n", transform=trimesh.transformations.rotation_matrix(np.pi / 2, [0, 1, 0]))
+    scene.add_geometry(
+        tri, node_name="n", transform=trimesh.transformations.rotation_matrix(np.pi / 2, [0, 1, 0])
+    )
     scene.export(str(tmp_path / "n.glb"))
     surface = load_mesh(tmp_path / "n.glb")
     np.testing.assert_allclose(surface.normals, np.tile([1.0, 0.0, 0.0], (3, 1)), atol=1e-6)
@@ -377,9 +447,14 @@ def test_trimesh_mesh_direct():
 
 def test_obj_objects_become_parts(tmp_path):
     path = tmp_path / "two.obj"
-    path.write_text("o first\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\no second\nv 0 0 1\nv 1 0 1\nv 0 1 1\nv 8 8 8\nf 4 5 6\n")
+    path.write_text(
+        "o first\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n"
+        "o second\nv 0 0 1\nv 1 0 1\nv 0 1 1\nv 8 8 8\nf 4 5 6\n"
+    )
     surface = load_mesh(path)
-    assert [(p.name, p.vertex_start, p.vertex_stop, p.face_start, p.face_stop) for p in surface.parts] == [
+    assert [
+        (p.name, p.vertex_start, p.vertex_stop, p.face_start, p.face_stop) for p in surface.parts
+    ] == [
         ("first", 0, 3, 0, 1),
         ("second", 3, 7, 1, 2),
     ]
@@ -451,8 +526,51 @@ def test_usd_vertex_normals_used_and_rotated(tmp_path):
 
 def test_usd_face_varying_normals_ignored(tmp_path):
     normals = [(1, 0, 0)] * 9
-    surface = load_mesh(_author_usd(tmp_path / "fv.usda", normals=normals, interpolation="faceVarying"))
+    surface = load_mesh(
+        _author_usd(tmp_path / "fv.usda", normals=normals, interpolation="faceVarying")
+    )
     np.testing.assert_allclose(surface.normals, np.tile([0.0, 0.0, 1.0], (5, 1)), atol=1e-12)
+
+
+def test_usd_instances_orientation_purpose_holes(tmp_path):
+    from pxr import Gf, Sdf, Usd, UsdGeom
+
+    path = tmp_path / "scene.usda"
+    stage = Usd.Stage.CreateNew(str(path))
+    proto = UsdGeom.Mesh.Define(stage, "/Proto/M")
+    proto.CreatePointsAttr([(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0)])
+    proto.CreateFaceVertexCountsAttr([4])
+    proto.CreateFaceVertexIndicesAttr([0, 1, 2, 3])
+    proto.CreateOrientationAttr(UsdGeom.Tokens.leftHanded)  # front face is -z
+    stage.GetPrimAtPath("/Proto").SetSpecifier(Sdf.SpecifierClass)
+    for i in range(2):
+        xform = UsdGeom.Xform.Define(stage, f"/I{i}")
+        xform.AddTranslateOp().Set(Gf.Vec3d(5.0 * i, 0.0, 0.0))
+        xform.GetPrim().GetReferences().AddInternalReference("/Proto")
+        xform.GetPrim().SetInstanceable(True)
+    guide = UsdGeom.Mesh.Define(stage, "/Guide")
+    guide.CreatePointsAttr([(0, 0, 0), (1, 0, 0), (0, 1, 0)])
+    guide.CreateFaceVertexCountsAttr([3])
+    guide.CreateFaceVertexIndicesAttr([0, 1, 2])
+    guide.CreatePurposeAttr(UsdGeom.Tokens.guide)
+    holed = UsdGeom.Mesh.Define(stage, "/Holed")
+    holed.CreatePointsAttr([(0, 0, 0), (1, 0, 0), (0, 1, 0), (1, 1, 0)])
+    holed.CreateFaceVertexCountsAttr([3, 3])
+    holed.CreateFaceVertexIndicesAttr([0, 1, 2, 1, 3, 2])
+    holed.CreateHoleIndicesAttr([0])
+    stage.GetRootLayer().Save()
+
+    surface = load_mesh(path)
+    assert [(p.prim_path, p.vertex_start, p.face_start) for p in surface.parts] == [
+        ("/I0/M", 0, 0),
+        ("/I1/M", 4, 2),
+        ("/Holed", 8, 4),
+    ]
+    np.testing.assert_array_equal(surface.positions[4], [5.0, 0.0, 0.0])
+    np.testing.assert_allclose(surface.normals[:8], np.tile([0.0, 0.0, -1.0], (8, 1)), atol=1e-15)
+    np.testing.assert_array_equal(surface.parts[0].face_vertex_indices, [3, 2, 1, 0])
+    np.testing.assert_array_equal(surface.faces[4:], [[9, 11, 10]])  # the hole is not traced
+    np.testing.assert_array_equal(surface.parts[2].face_vertex_counts, [3, 3])
 
 
 def test_usd_bad_topology(tmp_path):
@@ -465,7 +583,9 @@ def test_usd_bad_topology(tmp_path):
     mesh.CreateFaceVertexCountsAttr([3, 3])
     mesh.CreateFaceVertexIndicesAttr([0, 1, 2])
     stage.GetRootLayer().Save()
-    with pytest.raises(InputError, match=r"^bad.usda: /M: faceVertexCounts sum to 6 but faceVertexIndices has 3"):
+    with pytest.raises(
+        InputError, match=r"^bad.usda: /M: faceVertexCounts sum to 6 but faceVertexIndices has 3"
+    ):
         load_mesh(path)
 
 
@@ -497,18 +617,43 @@ BAD_INPUTS = {
     "garbage.stl": (_garbage, "cannot read as STL"),
     "garbage.glb": (_garbage, "cannot read as glTF"),
     "garbage.usda": (_garbage, "cannot read as USD"),
+    "nomesh.usda": (
+        lambda p: (p.write_text('#usda 1.0\ndef Xform "A" {}\n'), p)[1],
+        "no visible UsdGeom.Mesh",
+    ),
     "truncated.ply": (_truncated_ply, "cannot read as PLY"),
-    "empty.ply": (lambda p: write_ply(p, np.zeros((0, 3)), np.zeros((0, 3), int)), "mesh is empty (no vertices)"),
+    "empty.ply": (
+        lambda p: write_ply(p, np.zeros((0, 3)), np.zeros((0, 3), int)),
+        "mesh is empty (no vertices)",
+    ),
     "empty.obj": (lambda p: (p.write_text("# nothing\n"), p)[1], "mesh is empty (no vertices)"),
-    "nan.ply": (lambda p: write_ply(p, NAN_POSITIONS, FACES), "1 vertices have NaN or inf coordinates (first: vertex 2)"),
-    "nan.obj": (lambda p: write_obj(p, NAN_POSITIONS, FACES), "1 vertices have NaN or inf coordinates (first: vertex 2)"),
-    "range.ply": (lambda p: write_ply(p, POSITIONS, [[0, 1, 2], [0, 1, 8]]), "1 faces reference vertex 8 but the mesh has 8 vertices"),
-    "range.obj": (lambda p: write_obj(p, POSITIONS, [[0, 1, 2], [0, 1, 8]]), "1 faces reference vertex 8 but the mesh has 8 vertices"),
+    "nan.ply": (
+        lambda p: write_ply(p, NAN_POSITIONS, FACES),
+        "1 vertices have NaN or inf coordinates (first: vertex 2)",
+    ),
+    "nan.obj": (
+        lambda p: write_obj(p, NAN_POSITIONS, FACES),
+        "1 vertices have NaN or inf coordinates (first: vertex 2)",
+    ),
+    "range.ply": (
+        lambda p: write_ply(p, POSITIONS, [[0, 1, 2], [0, 1, 8]]),
+        "1 faces reference vertex 8 but the mesh has 8 vertices",
+    ),
+    "range.obj": (
+        lambda p: write_obj(p, POSITIONS, [[0, 1, 2], [0, 1, 8]]),
+        "1 faces reference vertex 8 but the mesh has 8 vertices",
+    ),
     "range.off": (lambda p: write_off(p, POSITIONS, [[0, 1, 2], [0, 1, 8]]), "cannot read as OFF"),
-    "nofaces.ply": (lambda p: write_ply(p, POSITIONS, np.zeros((0, 3), int)), "mesh has 8 vertices but no faces"),
+    "nofaces.ply": (
+        lambda p: write_ply(p, POSITIONS, np.zeros((0, 3), int)),
+        "mesh has 8 vertices but no faces",
+    ),
     "nofaces.obj": (lambda p: write_obj(p, POSITIONS, []), "mesh has 8 vertices but no faces"),
     "badnumber.obj": (lambda p: (p.write_text("v 0 0 x\n"), p)[1], "cannot read as OBJ: line 1"),
-    "badnormal.obj": (lambda p: (p.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nvn 0 0 1\nf 1//1 2//1 3//2\n"), p)[1], "face corners reference normal 2"),
+    "badnormal.obj": (
+        lambda p: (p.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nvn 0 0 1\nf 1//1 2//1 3//2\n"), p)[1],
+        "face corners reference normal 2",
+    ),
 }
 
 
@@ -526,7 +671,9 @@ def test_bad_input_one_line_error(tmp_path, name):
 
 
 def test_arrays_validated():
-    with pytest.raises(InputError, match=r"^<memory>: 1 faces reference vertex -1 but the mesh has 3 vertices$"):
+    with pytest.raises(
+        InputError, match=r"^<memory>: 1 faces reference vertex -1 but the mesh has 3 vertices$"
+    ):
         surface_from_arrays(np.eye(3), [[0, 1, -1]])
     with pytest.raises(InputError, match="no faces"):
         surface_from_arrays(np.eye(3), [])
@@ -551,13 +698,17 @@ def test_collinear_triangle_is_zero_not_nan():
     normals, areas = face_normals_and_areas(positions, np.array([[0, 1, 2]]))
     np.testing.assert_array_equal(normals, np.zeros((1, 3)))
     np.testing.assert_array_equal(areas, [0.0])
-    np.testing.assert_array_equal(angle_weighted_normals(positions, np.array([[0, 1, 2]])), np.zeros((3, 3)))
+    np.testing.assert_array_equal(
+        angle_weighted_normals(positions, np.array([[0, 1, 2]])), np.zeros((3, 3))
+    )
 
 
 def test_vertex_areas_unit_square():
     positions = np.array([[0.0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [7, 7, 7]])
     faces = np.array([[0, 1, 2], [0, 2, 3]])
-    np.testing.assert_allclose(vertex_areas(positions, faces), [1 / 3, 1 / 6, 1 / 3, 1 / 6, 0.0], rtol=1e-15)
+    np.testing.assert_allclose(
+        vertex_areas(positions, faces), [1 / 3, 1 / 6, 1 / 3, 1 / 6, 0.0], rtol=1e-15
+    )
 
 
 def test_cube_corner_normal_is_exact():
