@@ -12,10 +12,9 @@ IN  ?= data
 OUT ?= out
 MESH_EXT := ply obj stl off glb gltf usd usda usdc
 INPUTS   := $(foreach e,$(MESH_EXT),$(wildcard $(IN)/*.$(e)))
-# One .ply and one .usda per input; the stem keeps the input suffix so bunny.obj and
-# bunny.ply do not collide.
-OUT_PLY  := $(patsubst $(IN)/%,$(OUT)/%.ply,$(INPUTS))
-OUT_USD  := $(patsubst $(IN)/%,$(OUT)/%.usda,$(INPUTS))
+STEMS    := $(basename $(notdir $(INPUTS)))
+OUT_PLY  := $(STEMS:%=$(OUT)/%.ply)
+OUT_USD  := $(STEMS:%=$(OUT)/%.usda)
 
 .PHONY: help venv bake batch test bench lint coverage clean
 
@@ -35,14 +34,19 @@ bake: $(STAMP) ## Bake every mesh in data/ into out/ (PLY and USD)
 
 batch: $(STAMP) $(OUT_PLY) $(OUT_USD) ## Bake IN=dir into OUT=dir (parallel with -j, only what changed)
 
-$(OUT)/%.ply: $(IN)/% $(STAMP) | $(OUT)
-	$(AOBAKE) bake $< -o $@ $(BAKE_FLAGS)
-
-$(OUT)/%.usda: $(IN)/% $(STAMP) | $(OUT)
-	$(AOBAKE) bake $< -o $@ $(BAKE_FLAGS)
+# One bake per mesh writes both files (grouped targets, GNU make >= 4.3); one rule per
+# input suffix, so data/x.obj and data/x.ply map to out/x.* (the first found wins).
+define BAKE_RULE
+$$(OUT)/%.ply $$(OUT)/%.usda &: $$(IN)/%.$(1) $$(STAMP) | $$(OUT)
+	$$(AOBAKE) bake $$< -o $$(OUT)/$$*.ply -o $$(OUT)/$$*.usda $$(BAKE_FLAGS)
+endef
+$(foreach e,$(MESH_EXT),$(eval $(call BAKE_RULE,$(e))))
 
 $(OUT):
 	mkdir -p $@
+
+# PLY has no up axis; the bundled procedural scenes are +Z up (data/README.md).
+out/sphere_on_ground.ply out/sphere_on_ground.usda out/box_stack.ply out/box_stack.usda: BAKE_FLAGS += --up Z
 
 test: $(STAMP) ## Run the test suite
 	$(PY) -m pytest -q

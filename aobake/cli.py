@@ -52,7 +52,12 @@ def main():
 @main.command()
 @click.argument("mesh", type=click.Path(path_type=Path))
 @click.option(
-    "-o", "--output", required=True, type=click.Path(path_type=Path), help="Output .ply, .usda, .usdc or .usd."
+    "-o",
+    "--output",
+    required=True,
+    multiple=True,
+    type=click.Path(path_type=Path),
+    help="Output .ply, .usda, .usdc or .usd (repeat for several formats from one bake).",
 )
 @click.option(
     "--method", type=click.Choice(["embree"]), default="embree", show_default=True, help="AO method."
@@ -81,15 +86,21 @@ def main():
     help="Adaptive: stop a vertex once its 95% interval half-width is below this.",
 )
 @click.option("--color", is_flag=True, help="Also write ao as grey vertex colours.")
-@click.option("--up", type=click.Choice(["Y", "Z"]), default="Y", show_default=True, help="USD stage up axis.")
 @click.option(
-    "--meters-per-unit", type=click.FloatRange(min=0, min_open=True), default=1.0, show_default=True, help="USD metersPerUnit."
+    "--up", type=click.Choice(["Y", "Z"]), default=None, help="USD stage up axis [default: the input's, else Y]."
+)
+@click.option(
+    "--meters-per-unit",
+    type=click.FloatRange(min=0, min_open=True),
+    default=None,
+    help="USD metersPerUnit [default: the input's, else 1].",
 )
 @common_options
 def bake(mesh, output, method, rays, measure, max_distance, bias, tolerance, color, up, meters_per_unit, seed, threads, quiet):
-    """Bake AO of MESH into OUTPUT as the per-vertex attribute `ao` (1 = open).
+    """Bake AO of MESH into OUTPUT as the per-vertex attribute `ao`.
 
-    MESH: PLY, OBJ, STL, OFF, GLB/glTF or USD. Vertex count and order are kept.
+    `ao` = 1 - A: 1 = fully open, 0 = fully occluded. MESH: PLY, OBJ, STL, OFF,
+    GLB/glTF or USD; vertex count and order are kept.
     """
     from .pipeline import bake_file
     from .progress import make_progress

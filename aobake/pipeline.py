@@ -5,7 +5,9 @@ Parses no command-line options and never exits the process.
 
 from __future__ import annotations
 
+import contextlib
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -14,6 +16,7 @@ import numpy as np
 
 from . import __version__
 from ._types import AOArray
+from .constants import DEFAULT_METERS_PER_UNIT, DEFAULT_UP_AXIS
 from .errors import NumericalError
 from .io_common import check_output_dir, output_kind
 from .mesh import Surface
@@ -115,7 +118,7 @@ def bake(mesh: Any, method: str = "embree", *, progress: Progress | None = None,
 
 def bake_file(
     source: str | Path,
-    output: str | Path,
+    output: str | Path | Sequence[str | Path],
     *,
     method: str = "embree",
     color: bool = False,
@@ -124,19 +127,27 @@ def bake_file(
     progress: Progress | None = None,
     **options,
 ) -> BakeReport:
-    """Load ``source``, bake it, write ``output`` (.ply, .usda, .usdc or .usd) atomically.
+    """Load ``source``, bake it once, write ``output`` (.ply, .usda, .usdc or .usd) atomically.
 
-    The output suffix and directory are checked before loading or computing, so a typo
-    fails at once; nothing is written unless the whole bake succeeds.
+    ``output`` may be several paths (one bake, several formats). Suffixes and
+    directories are checked before loading or computing, so a typo fails at once;
+    nothing is written unless the whole bake and every write succeed. ``up_axis`` and
+    ``meters_per_unit`` (USD stage metrics) default to the input's own (USD, glTF),
+    else "Y" and 1.0.
 
     Returns
     -------
     BakeReport
     """
     from .formats import write_bake
+    from .io_common import atomic_write
 
-    output_kind(output)
-    check_output_dir(output)
+    outputs = [Path(output)] if isinstance(output, (str, Path)) else [Path(o) for o in output]
+    if not outputs:
+        raise ValueError("no output path given")
+    for path in outputs:
+        output_kind(path)
+        check_output_dir(path)
     surface = as_surface(source)
     t0 = time.perf_counter()
     ao, n_rays, contacts = _compute(surface, method, options, progress)
@@ -145,15 +156,25 @@ def bake_file(
         raise NumericalError(f"{surface.source}: {method} returned {ao.shape} values for {surface.n_vertices} vertices")
     custom = {"method": method, "version": __version__, "source": Path(str(source)).name}
     custom.update({k: ("none" if v is None else v) for k, v in options.items() if k not in ("threads", "chunk_rays")})
-    write_kwargs = {"color": color, "custom_data": custom}
-    if up_axis is not None:
-        write_kwargs["up_axis"] = up_axis
-    if meters_per_unit is not None:
-        write_kwargs["meters_per_unit"] = meters_per_unit
-    write_bake(output, surface, np.asarray(ao), **write_kwargs)
+    # Stage metrics: what the caller says, else what the input said (USD, glTF), else
+    # the documented defaults. An unauthored metersPerUnit would mean centimetres.
+    meta = surface.metadata
+    # Every file goes to a temporary name first; all are renamed only once all are
+    # written, so a failure (or Ctrl-C) in the second leaves no first behind either.
+    with contextlib.ExitStack() as stack:
+        for path in outputs:
+            write_bake(
+                stack.enter_context(atomic_write(path)),
+                surface,
+                np.asarray(ao),
+                color=color,
+                custom_data=custom,
+                up_axis=up_axis or meta.get("up_axis") or DEFAULT_UP_AXIS,
+                meters_per_unit=meters_per_unit or meta.get("meters_per_unit") or DEFAULT_METERS_PER_UNIT,
+            )
     return BakeReport(
         source=Path(str(source)).name,
-        output=str(output),
+        output=", ".join(str(p) for p in outputs),
         method=method,
         n_vertices=surface.n_vertices,
         n_rays=n_rays,

@@ -66,3 +66,34 @@ def test_progress_bar_only_on_a_terminal():
     aobake.bake(s, n_rays=8, progress=bar)
     text = stream.getvalue()
     assert "embree [" in text and "100.0%" in text and text.endswith("\n")
+
+
+def test_several_outputs_from_one_bake(tmp_path):
+    s, _ = shapes.sphere_on_ground(0.5, 2, cells=4)
+    src = tmp_path / "s.ply"
+    trimesh.Trimesh(s.positions, s.faces, process=False).export(src)
+    outs = [tmp_path / "a.ply", tmp_path / "a.usda"]
+    report = aobake.bake_file(src, outs, n_rays=16)
+    np.testing.assert_array_equal(read_bake(outs[0]), read_bake(outs[1]))
+    assert report.n_rays == 16 * s.n_vertices  # baked once
+
+
+def test_failure_in_second_output_leaves_neither(tmp_path, monkeypatch):
+    import aobake.formats as formats
+
+    s, _ = shapes.sphere_on_ground(0.5, 2, cells=4)
+    src = tmp_path / "s.ply"
+    trimesh.Trimesh(s.positions, s.faces, process=False).export(src)
+    real = formats.write_bake
+    calls = []
+
+    def flaky(path, *args, **kwargs):
+        calls.append(path)
+        if len(calls) == 2:
+            raise OSError("disk full")
+        return real(path, *args, **kwargs)
+
+    monkeypatch.setattr(formats, "write_bake", flaky)
+    with pytest.raises(OSError):
+        aobake.bake_file(src, [tmp_path / "a.ply", tmp_path / "a.usda"], n_rays=8)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["s.ply"]
