@@ -14,7 +14,7 @@ __all__ = ["bake", "bake_file", "load_mesh", "embree_ao", "write_ply", "write_us
 _LAZY = {
     "bake": "pipeline",
     "bake_file": "pipeline",
-    "load_mesh": "mesh",
+    "load_mesh": "readers",
     "embree_ao": "raytrace",
     "write_ply": "io_ply",
     "write_usd": "io_usd",

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import InputError, NumericalError
+from .errors import InputError
 from .io_common import output_kind
 from .io_ply import read_ao_ply, write_ply
 from .io_usd import read_ao_usd, write_usd
@@ -68,18 +68,11 @@ def write_bake(
         Unsupported suffix (checked first).
     NumericalError
         ``ao`` is not ``(n,)`` for the surface's ``n`` vertices, non-finite, or
-        outside [0, 1].
+        outside [0, 1] (checked by the writer before anything is opened).
     InputError, OutputError, ValueError
         From the writer (bad topology, unwritable directory, bad options).
     """
-    kind = output_kind(path)
-    ao = np.asarray(ao)
-    if ao.shape != (surface.n_vertices,):
-        raise NumericalError(
-            f"{Path(path).name}: ao has shape {ao.shape} "
-            f"but the surface has {surface.n_vertices} vertices"
-        )
-    if kind == "ply":
+    if output_kind(path) == "ply":
         comments = (
             [] if custom_data is None else [f"aobake {k}={v}" for k, v in dict(custom_data).items()]
         )

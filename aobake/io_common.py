@@ -45,10 +45,26 @@ def check_output_dir(path: str | Path) -> None:
         raise OutputError(f"{Path(path).name}: output path is a directory")
 
 
-def check_ao(ao: np.ndarray, name: str = "ao") -> np.ndarray:
+def check_ao(
+    ao: np.ndarray, name: str = "ao", *, n_vertices: int | None = None, where: str = ""
+) -> np.ndarray:
     """Return ``ao`` as float32 after checking it is finite and within [0, 1].
 
-    Raises :class:`NumericalError` otherwise: NaN or inf never reaches a file.
+    Parameters
+    ----------
+    ao : array_like
+    name : str
+        What the finite/range messages start with.
+    n_vertices : int, optional
+        When given, ``ao`` must also have shape ``(n_vertices,)``.
+    where : str
+        What the shape message starts with (the output file's name).
+
+    Raises
+    ------
+    NumericalError
+        A non-finite value, a value outside [0, 1], or the wrong shape: NaN or inf never
+        reaches a file.
     """
     ao = np.asarray(ao)
     bad = ~np.isfinite(ao)
@@ -57,6 +73,10 @@ def check_ao(ao: np.ndarray, name: str = "ao") -> np.ndarray:
     if ao.size and (ao.min() < 0.0 or ao.max() > 1.0):
         raise NumericalError(
             f"{name}: values outside [0, 1] (min {ao.min():.6g}, max {ao.max():.6g}); refusing to write"
+        )
+    if n_vertices is not None and ao.shape != (n_vertices,):
+        raise NumericalError(
+            f"{where or name}: ao has shape {ao.shape} but the mesh has {n_vertices} vertices"
         )
     return ao.astype(np.float32)
 

@@ -1,17 +1,17 @@
 """PLY output with a per-vertex ``ao`` property, and reading ``ao`` back from any PLY.
 
-Arrays in, files out: computes no AO. Imports numpy and aobake's ``errors`` and
-``io_common`` only (no trimesh, no plyfile).
+Arrays in, files out: computes no AO. Imports numpy and aobake's ``errors``,
+``io_common`` and ``ply`` only (no trimesh, no plyfile).
 
 Why not trimesh's exporter: the format is a short text header followed by two packed
 numpy structured arrays, so writing it here is a few lines and every byte is ours.
 trimesh's ``export_ply`` needs a ``Trimesh`` (whose constructor and caches we would have
 to keep from touching the vertices), writes the dtype a custom attribute happens to have
 (a float64 ``ao`` becomes ``double``), exports colour as RGBA and adds its own comment;
-the layer rules also keep trimesh out of the writers (``mesh`` is its only importer).
-Here the header is fixed by construction: ``ao`` is always ``float``. The reader is a
-small parser of its own for the same reason; it handles ASCII and both binary
-encodings, so PLY files from other tools (MeshLab, Blender, CloudCompare) read too.
+the layer rules also keep trimesh out of the writers (``readers`` is its only importer).
+Here the header is fixed by construction: ``ao`` is always ``float``. Reading goes
+through :mod:`aobake.ply`, which handles ASCII and both binary encodings, so PLY files
+from other tools (MeshLab, Blender, CloudCompare) read too.
 """
 
 from __future__ import annotations
@@ -21,26 +21,12 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import InputError, NumericalError, OutputError
+from .errors import InputError, OutputError
 from .io_common import atomic_write, check_ao
+from .ply import PlyList, read_bytes, read_ply, read_ply_header
 
 #: Largest index a PLY ``int`` (int32) face index can hold.
 INT32_MAX = int(np.iinfo(np.int32).max)
-
-#: A header longer than this is not a PLY header (guards against reading a huge binary).
-_MAX_HEADER_BYTES = 1 << 20
-
-#: PLY scalar type names (both spellings of the spec) and their numpy kinds.
-_PLY_TYPES = {
-    "char": "i1", "int8": "i1",
-    "uchar": "u1", "uint8": "u1",
-    "short": "i2", "int16": "i2",
-    "ushort": "u2", "uint16": "u2",
-    "int": "i4", "int32": "i4",
-    "uint": "u4", "uint32": "u4",
-    "float": "f4", "float32": "f4",
-    "double": "f8", "float64": "f8",
-}  # fmt: skip
 
 
 def write_ply(
@@ -96,15 +82,11 @@ def write_ply(
         Arrays of the wrong shape, or a comment containing a newline.
     """
     path = Path(path)
-    ao32 = check_ao(ao)
     positions = np.asarray(positions)
     if positions.ndim != 2 or positions.shape[1] != 3:
         raise ValueError(f"positions must have shape (n, 3), got {positions.shape}")
     n = positions.shape[0]
-    if ao32.shape != (n,):
-        raise NumericalError(
-            f"{path.name}: ao has shape {ao32.shape} but the mesh has {n} vertices"
-        )
+    ao32 = check_ao(ao, n_vertices=n, where=path.name)
     faces = np.asarray(faces)
     if faces.size == 0:
         faces = faces.reshape(0, 3)
@@ -188,7 +170,8 @@ def read_ao_ply(path: str | Path) -> np.ndarray:
     """Read the per-vertex ``ao`` property of a PLY file (``quality`` if there is no ``ao``).
 
     Reads ASCII, binary little-endian and binary big-endian PLY, from aobake or any
-    other tool. Only the header and the vertex element are parsed.
+    other tool (parsed by :func:`aobake.ply.read_ply`). Only the header, the vertex
+    element and the elements before it are parsed.
 
     Parameters
     ----------
@@ -208,180 +191,18 @@ def read_ao_ply(path: str | Path) -> np.ndarray:
         ``ao``/``quality`` property; the one-line message starts with the file name.
     """
     path = Path(path)
-    try:
-        data = path.read_bytes()
-    except FileNotFoundError:
-        raise InputError(path, "file not found") from None
-    except IsADirectoryError:
-        raise InputError(path, "is a directory, not a PLY file") from None
-    except OSError as exc:
-        raise InputError(path, f"cannot read ({exc.strerror or exc})") from exc
-    fmt, elements, body = _parse_header(path, data)
-    names = [e[0] for e in elements]
-    if "vertex" not in names:
+    data = read_bytes(path)
+    # check the header first: a file without the property fails on that, not on its body
+    vertex = read_ply_header(path, data).elements.get("vertex")
+    if vertex is None:
         raise InputError(path, "PLY has no vertex element")
-    vprops = elements[names.index("vertex")][2]
-    pnames = [p[0] for p in vprops]
-    if "ao" in pnames:
-        key = "ao"
-    elif "quality" in pnames:
-        key = "quality"
-    else:
+    names = vertex[1]
+    key = next((k for k in ("ao", "quality") if k in names), None)
+    if key is None:
         raise InputError(
-            path, f"PLY vertices have no 'ao' or 'quality' property (found: {', '.join(pnames)})"
+            path, f"PLY vertices have no 'ao' or 'quality' property (found: {', '.join(names)})"
         )
-    if fmt == "ascii":
-        values = _read_ascii(path, data[body:], elements, key)
-    else:
-        values = _read_binary(
-            path, data, body, elements, key, "<" if fmt == "binary_little_endian" else ">"
-        )
-    return np.ascontiguousarray(values, dtype=np.float64)
-
-
-def _parse_header(path: Path, data: bytes):
-    """Split a PLY header into (format, [(name, count, props)], body offset).
-
-    ``props`` is a list of ``(name, kind)`` for scalars and ``(name, (count_kind,
-    item_kind))`` for lists, kinds being numpy codes without byte order.
-    """
-    if not data.startswith(b"ply"):
-        raise InputError(path, "not a PLY file (no 'ply' magic)")
-    end = -1
-    for marker in (b"end_header\n", b"end_header\r\n", b"end_header\r"):
-        end = data.find(marker, 0, _MAX_HEADER_BYTES)
-        if end >= 0:
-            body = end + len(marker)
-            break
-    if end < 0:
-        raise InputError(path, "not a PLY file (no 'end_header' line)")
-    try:
-        text = data[:end].decode("ascii")
-    except UnicodeDecodeError:
-        text = data[:end].decode("latin-1")
-    fmt = None
-    elements: list = []
-    for raw in text.splitlines()[1:]:
-        words = raw.split()
-        if not words or words[0] in ("comment", "obj_info"):
-            continue
-        try:
-            if words[0] == "format":
-                fmt = words[1]
-            elif words[0] == "element":
-                elements.append((words[1], int(words[2]), []))
-            elif words[0] == "property":
-                if not elements:
-                    raise ValueError("property before any element")
-                if words[1] == "list":
-                    prop = (words[4], (_PLY_TYPES[words[2]], _PLY_TYPES[words[3]]))
-                else:
-                    prop = (words[2], _PLY_TYPES[words[1]])
-                elements[-1][2].append(prop)
-            else:
-                raise ValueError(f"unknown keyword {words[0]!r}")
-        except (IndexError, KeyError, ValueError) as exc:
-            raise InputError(path, f"bad PLY header line {raw.strip()!r} ({exc})") from None
-    if fmt not in ("ascii", "binary_little_endian", "binary_big_endian"):
-        raise InputError(path, f"unsupported PLY format {fmt!r}")
-    for name, count, _ in elements:
-        if count < 0:
-            raise InputError(path, f"PLY element {name!r} has a negative count {count}")
-    return fmt, elements, body
-
-
-def _read_ascii(path: Path, body: bytes, elements, key: str) -> np.ndarray:
-    """Values of vertex property ``key`` from an ASCII PLY body (one row per line)."""
-    lines = [line for line in body.decode("latin-1").splitlines() if line.strip()]
-    row = 0
-    for name, count, props in elements:
-        if name != "vertex":
-            row += count  # one line per row, whatever its lists hold
-            continue
-        rows = lines[row : row + count]
-        if len(rows) < count:
-            raise InputError(
-                path, f"truncated: {count} vertices declared, {len(rows)} rows present"
-            )
-        try:
-            if all(not isinstance(kind, tuple) for _, kind in props):
-                table = np.array(" ".join(rows).split(), dtype=np.float64)
-                if table.size != count * len(props):
-                    raise ValueError(
-                        f"{table.size} numbers for {count} rows of {len(props)} properties"
-                    )
-                return table.reshape(count, len(props))[:, [p[0] for p in props].index(key)]
-            out = np.zeros(count)
-            for i, line in enumerate(rows):
-                out[i] = _ascii_row_value(line.split(), props, key)
-            return out
-        except ValueError as exc:
-            raise InputError(path, f"bad ASCII vertex data ({exc})") from None
-    raise AssertionError("unreachable: caller checked for a vertex element")
-
-
-def _ascii_row_value(tokens: list[str], props, key: str) -> float:
-    """The value of ``key`` in one ASCII row whose properties include lists."""
-    pos = 0
-    for name, kind in props:
-        if isinstance(kind, tuple):
-            pos += 1 + int(tokens[pos])
-        else:
-            if name == key:
-                return float(tokens[pos])
-            pos += 1
-    raise ValueError("property not found in row")
-
-
-def _read_binary(
-    path: Path, data: bytes, offset: int, elements, key: str, order: str
-) -> np.ndarray:
-    """Values of vertex property ``key`` from a binary PLY body starting at ``offset``."""
-    for name, count, props in elements:
-        has_lists = any(isinstance(kind, tuple) for _, kind in props)
-        if not has_lists:
-            dtype = np.dtype([(p, order + kind) for p, kind in props])
-            size = count * dtype.itemsize
-            if offset + size > len(data):
-                raise InputError(
-                    path,
-                    f"truncated: element {name!r} needs {size} bytes, {len(data) - offset} remain",
-                )
-            if name == "vertex":
-                return np.frombuffer(data, dtype=dtype, count=count, offset=offset)[key]
-            offset += size
-        else:
-            values, offset = _binary_rows_with_lists(path, data, offset, count, props, key, order)
-            if name == "vertex":
-                return values
-    raise AssertionError("unreachable: caller checked for a vertex element")
-
-
-def _binary_rows_with_lists(
-    path: Path, data: bytes, offset: int, count: int, props, key: str, order: str
-):
-    """Walk ``count`` binary rows with list properties; return (values of ``key``, end offset).
-
-    Row by row in Python: only foreign files put lists in the vertex element or an
-    element before it, and those are small in practice.
-    """
-    out = np.zeros(count)
-    try:
-        for i in range(count):
-            for name, kind in props:
-                if isinstance(kind, tuple):
-                    ctype = np.dtype(order + kind[0])
-                    n_items = int(np.frombuffer(data, ctype, 1, offset)[0])
-                    offset += ctype.itemsize + n_items * np.dtype(kind[1]).itemsize
-                else:
-                    dt = np.dtype(order + kind)
-                    if name == key:
-                        out[i] = np.frombuffer(data, dt, 1, offset)[0]
-                    offset += dt.itemsize
-    except ValueError:
-        raise InputError(path, f"truncated binary data in row {i} of {count}") from None
-    if offset > len(data):
-        raise InputError(
-            path, f"truncated binary data ({offset} bytes needed, {len(data)} present)"
-        )
-    return out, offset
+    column = read_ply(path, data, elements=("vertex",)).elements["vertex"].properties[key]
+    if isinstance(column, PlyList):
+        raise InputError(path, f"PLY vertex property {key!r} is a list, not one value per vertex")
+    return np.ascontiguousarray(column, dtype=np.float64)

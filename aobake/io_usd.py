@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import InputError, NumericalError, OutputError
+from .errors import InputError, OutputError
 from .io_common import atomic_write, check_ao
 
 #: Largest index a USD ``int[]`` (int32) can hold.
@@ -97,12 +97,7 @@ def write_usd(
         Bad ``up_axis``, ``meters_per_unit`` or ``custom_data``.
     """
     path = Path(path)
-    ao32 = check_ao(ao)
-    n = surface.n_vertices
-    if ao32.shape != (n,):
-        raise NumericalError(
-            f"{path.name}: ao has shape {ao32.shape} but the surface has {n} vertices"
-        )
+    ao32 = check_ao(ao, n_vertices=surface.n_vertices, where=path.name)
     up = str(up_axis).upper()
     if up not in UP_AXES:
         raise ValueError(f"up_axis must be 'Y' or 'Z', got {up_axis!r}")

@@ -69,7 +69,7 @@ def as_surface(mesh: Any) -> Surface:
     """A :class:`Surface` from a path, a ``trimesh.Trimesh``/``Scene``, or a Surface."""
     if isinstance(mesh, Surface):
         return mesh
-    from .mesh import load_mesh, mesh_from_trimesh
+    from .readers import load_mesh, mesh_from_trimesh
 
     if isinstance(mesh, (str, Path)):
         return load_mesh(mesh)

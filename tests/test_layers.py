@@ -14,7 +14,7 @@ PACKAGE = Path(__file__).resolve().parents[1] / "aobake"
 LAYERS = {
     "constants": 0, "errors": 0, "_types": 0,
     "kernels": 1,
-    "mesh": 2, "sampling": 2, "progress": 2, "io_common": 2,
+    "mesh": 2, "sampling": 2, "progress": 2, "io_common": 2, "ply": 2, "readers": 2,
     "raytrace": 3, "bunnell": 3, "field": 3, "raster": 3, "hierarchy": 3,
     "io_ply": 4, "io_usd": 4, "formats": 4,
     "pipeline": 5, "compare": 5, "sweep": 5,
@@ -32,6 +32,11 @@ def test_cli_import_is_light():
     loaded = _loaded_after("import aobake.cli")
     for heavy in ("numpy", "numba", "trimesh", "embreex", "pxr", "matplotlib"):
         assert heavy not in loaded, f"`import aobake.cli` pulls in {heavy}"
+
+
+def test_readers_import_is_light():
+    loaded = _loaded_after("import aobake.readers")
+    assert not {"trimesh", "pxr"} & loaded, "trimesh and pxr are imported inside functions only"
 
 
 def test_package_import_is_light():
@@ -93,10 +98,10 @@ def _external(path: Path) -> set[str]:
     return names
 
 
-def test_only_raytrace_imports_embreex_and_only_mesh_imports_trimesh():
+def test_only_raytrace_imports_embreex_and_only_readers_imports_trimesh():
     for path in PACKAGE.rglob("*.py"):
         ext = _external(path)
         if path.stem != "raytrace":
             assert "embreex" not in ext, path
-        if path.stem != "mesh":
+        if path.stem != "readers":
             assert "trimesh" not in ext, path

@@ -17,11 +17,10 @@ from aobake.errors import InputError
 from aobake.mesh import (
     angle_weighted_normals,
     face_normals_and_areas,
-    load_mesh,
-    mesh_from_trimesh,
     surface_from_arrays,
     vertex_areas,
 )
+from aobake.readers import load_mesh, mesh_from_trimesh
 
 # A mesh with the awkward but legal features a loader must not "fix":
 # vertex 3 duplicates vertex 1, vertex 4 (middle) and 7 (last) are unreferenced,
