@@ -1,0 +1,284 @@
+"""Slow, obviously-correct numpy references for the disk method, and small test scenes.
+
+Nothing here imports aobake's kernels: the disk areas, the O(n^2) sums, the passes and a
+Moller-Trumbore ray-cast AO are written again from the formulas, one receiver at a time.
+Use on small meshes only (<= ~3k vertices for the sums, <= ~1k for ray casting).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import trimesh
+
+from aobake.mesh import Part, Surface, surface_from_arrays
+
+# --------------------------------------------------------------------------------------
+# closed forms
+
+
+def disk_on_axis_cosine(radius: float, height: float) -> float:
+    """Cosine-weighted occlusion of a point facing a coaxial disk: R^2 / (R^2 + h^2)."""
+    return radius**2 / (radius**2 + height**2)
+
+
+def disk_on_axis_solid_angle(radius: float, height: float) -> float:
+    """Uniform (solid-angle) occlusion of the same: Omega / 2 pi = 1 - h / sqrt(R^2 + h^2)."""
+    return 1.0 - height / np.sqrt(radius**2 + height**2)
+
+
+# --------------------------------------------------------------------------------------
+# elements and exact sums
+
+
+def naive_vertex_areas(positions: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """A third of each triangle's area (0.5 |e1 x e2|) to each of its corners, face by face."""
+    areas = np.zeros(len(positions))
+    for a, b, c in faces:
+        tri_area = 0.5 * np.linalg.norm(
+            np.cross(positions[b] - positions[a], positions[c] - positions[a])
+        )
+        areas[a] += tri_area / 3.0
+        areas[b] += tri_area / 3.0
+        areas[c] += tri_area / 3.0
+    return areas
+
+
+def naive_occlusion_sum(positions, normals, areas, weights, measure="cosine", max_distance=None):
+    """Unsaturated sum of disk terms at every vertex, one receiver at a time.
+
+    Emitters: vertices with area > 0 and a nonzero normal. Skipped: the receiver itself,
+    emitters with r^2 <= 1e-12 A (coincident), r > max_distance, back faces (front faces
+    cast). A receiver without a normal uses the mean receiver weight (1/4 cosine, 1/2
+    uniform).
+    """
+    positions = np.asarray(positions, dtype=np.float64)
+    n = len(positions)
+    casts = (areas > 0) & (np.linalg.norm(normals, axis=1) > 0)
+    out = np.zeros(n)
+    for i in range(n):
+        d = positions - positions[i]
+        r = np.linalg.norm(d, axis=1)
+        ok = casts.copy()
+        ok[i] = False
+        ok &= r**2 > 1e-12 * areas
+        if max_distance is not None:
+            ok &= r <= max_distance
+        if not ok.any():
+            continue
+        v = d[ok] / r[ok, None]
+        a = areas[ok]
+        cos_e = np.maximum(-np.einsum("ij,ij->i", normals[ok], v), 0.0)
+        has_normal = np.linalg.norm(normals[i]) > 0
+        cos_r = v @ normals[i]
+        if measure == "cosine":
+            g = np.maximum(cos_r, 0.0) if has_normal else np.full(len(a), 0.25)
+            term = a * cos_e * g / (np.pi * r[ok] ** 2 + a)
+        else:
+            g = np.clip(4.0 * cos_r, 0.0, 1.0) if has_normal else np.full(len(a), 0.5)
+            term = (1.0 - r[ok] / np.sqrt(a / np.pi + r[ok] ** 2)) * cos_e * g
+        out[i] = np.sum(weights[ok] * term)
+    return out
+
+
+def naive_bunnell_ao(
+    surface: Surface, passes=2, measure="cosine", max_distance=None, combine="last"
+):
+    """Exact (no hierarchy) multi-pass disk AO, straight from the definitions.
+
+    Returns
+    -------
+    ao : (n,) float64, and occlusion : (K, n) float64 of every pass.
+    """
+    positions = surface.positions - 0.5 * (surface.positions.min(0) + surface.positions.max(0))
+    areas = naive_vertex_areas(positions, surface.faces)
+    weights = np.ones(len(positions))
+    occ = []
+    for _ in range(passes):
+        a = np.clip(
+            naive_occlusion_sum(positions, surface.normals, areas, weights, measure, max_distance),
+            0,
+            1,
+        )
+        occ.append(a)
+        weights = 1.0 - a
+    occ = np.array(occ)
+    if combine == "last":
+        ao = 1.0 - occ[-1]
+    elif combine == "bunnell":
+        ao = 1.0 - (0.4 * occ[-2] + 0.6 * occ[-1])
+    else:
+        a0, a1 = 1.0 - occ[-2], 1.0 - occ[-1]
+        ao = 0.7 * np.minimum(a0, a1) + 0.3 * np.maximum(a0, a1)
+    return ao, occ
+
+
+# --------------------------------------------------------------------------------------
+# ray-cast reference (cosine-weighted, two-sided triangles)
+
+
+def cosine_directions(normal: np.ndarray, n_rays: int, rng: np.random.Generator) -> np.ndarray:
+    """Stratified cosine-weighted directions about ``normal`` (Malley's method)."""
+    side = int(np.ceil(np.sqrt(n_rays)))
+    i, j = np.divmod(np.arange(side * side), side)
+    u1 = (i + rng.random(side * side)) / side
+    u2 = (j + rng.random(side * side)) / side
+    rad = np.sqrt(u1)
+    phi = 2 * np.pi * u2
+    local = np.c_[rad * np.cos(phi), rad * np.sin(phi), np.sqrt(np.maximum(0.0, 1 - u1))]
+    helper = np.array([1.0, 0, 0]) if abs(normal[0]) < 0.9 else np.array([0, 1.0, 0])
+    t = np.cross(normal, helper)
+    t /= np.linalg.norm(t)
+    b = np.cross(normal, t)
+    return local @ np.array([t, b, normal])
+
+
+def ray_hits(origins, directions, tri, t_max):
+    """Moller-Trumbore, two-sided: does each ray hit any triangle at 0 < t <= t_max?"""
+    e1 = tri[:, 1] - tri[:, 0]
+    e2 = tri[:, 2] - tri[:, 0]
+    pvec = np.cross(directions[:, None, :], e2[None])  # (R, T, 3)
+    det = np.einsum("rtk,tk->rt", pvec, e1)
+    ok = np.abs(det) > 1e-300
+    inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
+    s = origins[:, None, :] - tri[None, :, 0]
+    u = np.einsum("rtk,rtk->rt", s, pvec) * inv
+    q = np.cross(s, e1[None])
+    v = np.einsum("rk,rtk->rt", directions, q) * inv
+    t = np.einsum("tk,rtk->rt", e2, q) * inv
+    hit = ok & (u >= 0) & (v >= 0) & (u + v <= 1) & (t > 0) & (t <= t_max)
+    return hit.any(axis=1)
+
+
+def raycast_ao(surface: Surface, n_rays=256, seed=0, max_distance=None, offset=1e-6, vertices=None):
+    """Cosine-weighted Monte Carlo accessibility ``1 - hits / N`` with numpy ray casting.
+
+    Origins are offset by ``offset * bbox diagonal`` along the normal. Vertices without a
+    normal get NaN. ``vertices`` restricts the receivers (default: all).
+    """
+    rng = np.random.default_rng(seed)
+    p = surface.positions
+    diag = np.linalg.norm(p.max(0) - p.min(0))
+    tri = p[surface.faces]
+    t_max = np.inf if max_distance is None else max_distance
+    idx = np.arange(len(p)) if vertices is None else np.asarray(vertices)
+    out = np.full(len(idx), np.nan)
+    for k, i in enumerate(idx):
+        n = surface.normals[i]
+        if not n.any():
+            continue
+        dirs = cosine_directions(n, n_rays, rng)
+        origins = np.repeat((p[i] + offset * diag * n)[None], len(dirs), axis=0)
+        out[k] = 1.0 - ray_hits(origins, dirs, tri, t_max).mean()
+    return out
+
+
+# --------------------------------------------------------------------------------------
+# scenes
+
+
+def grid(
+    cells: int, half: float, z: float = 0.0, *, up: bool = True
+) -> tuple[np.ndarray, np.ndarray]:
+    """Square grid in the plane z, (cells + 1)^2 vertices, normals +z (or -z)."""
+    u = np.linspace(-half, half, cells + 1)
+    x, y = np.meshgrid(u, u, indexing="ij")
+    positions = np.c_[x.ravel(), y.ravel(), np.full(x.size, z)]
+    idx = np.arange(x.size).reshape(x.shape)
+    a, b, c, d = (
+        idx[:-1, :-1].ravel(),
+        idx[1:, :-1].ravel(),
+        idx[1:, 1:].ravel(),
+        idx[:-1, 1:].ravel(),
+    )
+    faces = np.r_[np.c_[a, b, c], np.c_[a, c, d]]
+    if not up:
+        faces = faces[:, ::-1]
+    return positions, faces.astype(np.int64)
+
+
+def icosphere(subdivisions: int = 2, radius: float = 1.0, center=(0.0, 0.0, 0.0)):
+    mesh = trimesh.creation.icosphere(subdivisions=subdivisions, radius=radius)
+    return np.asarray(mesh.vertices) + np.asarray(center), np.asarray(mesh.faces, dtype=np.int64)
+
+
+def combine_meshes(*meshes, names=None) -> Surface:
+    """One Surface with one Part per (positions, faces) pair; normals angle-weighted."""
+    positions, faces, parts = [], [], []
+    v0 = f0 = 0
+    for k, (p, f) in enumerate(meshes):
+        positions.append(p)
+        faces.append(f + v0)
+        name = f"part{k}" if names is None else names[k]
+        counts = np.full(len(f), 3, dtype=np.int64)
+        parts.append(Part(name, v0, v0 + len(p), f0, f0 + len(f), counts, f.reshape(-1).copy()))
+        v0 += len(p)
+        f0 += len(f)
+    base = surface_from_arrays(np.concatenate(positions), np.concatenate(faces))
+    return Surface(base.positions, base.faces, base.normals, tuple(parts), base.source)
+
+
+def sphere_on_plane(subdivisions=2, cells=20) -> Surface:
+    """Unit sphere resting on a 6 x 6 ground grid (touching at the south pole)."""
+    return combine_meshes(icosphere(subdivisions), grid(cells, 3.0, -1.0))
+
+
+def touching_spheres(subdivisions=2) -> Surface:
+    return combine_meshes(
+        icosphere(subdivisions, center=(-1.0, 0, 0)), icosphere(subdivisions, center=(1.0, 0, 0))
+    )
+
+
+def facing_plates(cells=12, gap=0.5) -> Surface:
+    """Two parallel 2 x 2 plates a gap apart, front faces toward each other."""
+    return combine_meshes(grid(cells, 1.0, -gap / 2, up=True), grid(cells, 1.0, gap / 2, up=False))
+
+
+def voxel_surface(filled: np.ndarray, cells: int = 3) -> Surface:
+    """Boundary of a set of unit voxels: each exposed face a cells x cells grid of its own.
+
+    Face grids do not share vertices, so every voxel edge carries split vertices (same
+    position, different normals). Normals are the faces' outward normals.
+    """
+    positions, faces, normals = [], [], []
+    v0 = 0
+    shape = filled.shape
+    u = np.linspace(0.0, 1.0, cells + 1)
+    s, t = np.meshgrid(u, u, indexing="ij")
+    s, t = s.ravel(), t.ravel()
+    idx = np.arange(s.size).reshape(cells + 1, cells + 1)
+    a, b, c, d = (
+        idx[:-1, :-1].ravel(),
+        idx[1:, :-1].ravel(),
+        idx[1:, 1:].ravel(),
+        idx[:-1, 1:].ravel(),
+    )
+    quad = np.r_[np.c_[a, b, c], np.c_[a, c, d]]
+    for x, y, z in zip(*np.nonzero(filled), strict=True):
+        for axis in range(3):
+            for sign in (-1, 1):
+                nb = [x, y, z]
+                nb[axis] += sign
+                inside = all(0 <= nb[q] < shape[q] for q in range(3))
+                if inside and filled[tuple(nb)]:
+                    continue
+                e1, e2 = np.eye(3)[(axis + 1) % 3], np.eye(3)[(axis + 2) % 3]
+                base = np.array([x, y, z], dtype=float)
+                base[axis] += 1.0 if sign > 0 else 0.0
+                p = base + s[:, None] * e1 + t[:, None] * e2
+                n = np.zeros(3)
+                n[axis] = sign
+                f = quad if sign > 0 else quad[:, ::-1]
+                positions.append(p)
+                faces.append(f + v0)
+                normals.append(np.repeat(n[None], len(p), axis=0))
+                v0 += len(p)
+    return surface_from_arrays(
+        np.concatenate(positions), np.concatenate(faces), np.concatenate(normals)
+    )
+
+
+def voxel_sponge(cells: int = 3) -> Surface:
+    """Menger sponge level 1: a 3 x 3 x 3 block without its centre cross (concave solid)."""
+    i, j, k = np.indices((3, 3, 3))
+    filled = ((i == 1).astype(int) + (j == 1) + (k == 1)) < 2
+    return voxel_surface(filled, cells)
