@@ -125,5 +125,31 @@ def bake(mesh, output, method, rays, measure, max_distance, bias, tolerance, col
         click.echo(report.summary(), err=True)
 
 
+@main.command()
+@click.argument("reference", type=click.Path(path_type=Path))
+@click.argument("candidate", type=click.Path(path_type=Path))
+@click.option(
+    "--threshold", type=click.FloatRange(min=0), default=0.05, show_default=True, help="Report the share above this |error|."
+)
+@click.option("--worst", type=click.IntRange(min=0), default=10, show_default=True, help="List this many worst vertices.")
+@click.option("--json", "json_path", type=click.Path(path_type=Path), default=None, help="Also write the numbers as JSON.")
+@click.option(
+    "--plot", "plot_path", type=click.Path(path_type=Path), default=None, help="Histogram + scatter PNG (needs matplotlib)."
+)
+def compare(reference, candidate, threshold, worst, json_path, plot_path):
+    """Error report of CANDIDATE against REFERENCE (bakes of one mesh: PLY, USD or .npy).
+
+    Prints RMSE, MAE, bias, max and p50/p95/p99 of |error| (error = candidate -
+    reference, on `ao` = 1 - A), the share of vertices above --threshold and the worst
+    vertices.
+    """
+    from .pipeline import compare_files
+
+    report = compare_files(
+        reference, candidate, threshold=threshold, worst=worst, json_path=json_path, plot_path=plot_path
+    )
+    click.echo(report.to_text())
+
+
 if __name__ == "__main__":  # pragma: no cover
     sys.exit(main())

@@ -17,7 +17,7 @@ import numpy as np
 from . import __version__
 from ._types import AOArray
 from .constants import DEFAULT_METERS_PER_UNIT, DEFAULT_UP_AXIS
-from .errors import NumericalError
+from .errors import FormatError, NumericalError
 from .io_common import check_output_dir, output_kind
 from .mesh import Surface
 from .progress import Progress
@@ -182,3 +182,52 @@ def bake_file(
         contacts=contacts,
         options=dict(options),
     )
+
+
+def compare_files(
+    reference: str | Path,
+    candidate: str | Path,
+    *,
+    threshold: float = 0.05,
+    worst: int = 10,
+    json_path: str | Path | None = None,
+    plot_path: str | Path | None = None,
+):
+    """Compare two bakes of the same mesh (PLY, USD or ``.npy``); ``reference`` is "a".
+
+    Worst-vertex positions come from whichever file is a mesh. ``json_path`` and
+    ``plot_path`` (PNG, needs matplotlib) are written atomically; their suffixes and
+    directories are checked before anything is read.
+
+    Returns
+    -------
+    aobake.compare.Report
+    """
+    from .compare import compare_ao, plot_compare
+    from .formats import read_bake
+    from .io_common import atomic_write
+
+    for out in (json_path, plot_path):
+        if out is not None:
+            check_output_dir(out)
+    if plot_path is not None and Path(plot_path).suffix.lower() != ".png":
+        raise FormatError(f"{Path(plot_path).name}: the plot is written as PNG; use a .png suffix")
+    a = read_bake(reference)
+    b = read_bake(candidate)
+    positions = None
+    for path, values in ((reference, a), (candidate, b)):
+        if Path(path).suffix.lower() != ".npy":
+            from .readers import load_mesh
+
+            surface = load_mesh(path)
+            if surface.n_vertices == values.size:
+                positions = surface.positions
+            break
+    names = (Path(reference).name, Path(candidate).name)
+    report = compare_ao(a, b, positions=positions, threshold=threshold, worst=worst, names=names)
+    if json_path is not None:
+        with atomic_write(json_path) as tmp:
+            tmp.write_text(report.to_json() + "\n")
+    if plot_path is not None:
+        plot_compare(a, b, plot_path, names=names)
+    return report
