@@ -16,7 +16,7 @@ STEMS    := $(basename $(notdir $(INPUTS)))
 OUT_PLY  := $(STEMS:%=$(OUT)/%.ply)
 OUT_USD  := $(STEMS:%=$(OUT)/%.usda)
 
-.PHONY: help venv bake batch test bench lint coverage clean
+.PHONY: help venv bake batch test bench report lint coverage clean
 
 help: ## Show this help
 	@awk 'BEGIN {FS = ":.*?## "} /^[a-zA-Z_-]+:.*?## / {printf "  %-10s %s\n", $$1, $$2}' $(MAKEFILE_LIST)
@@ -54,6 +54,14 @@ test: $(STAMP) ## Run the test suite
 bench: $(STAMP) ## Benchmarks (prints ratios measured in one run); installs libigl for the peer comparison
 	$(PY) -m pip install --quiet '.[bench]' || echo "libigl not installable: peer rows skipped"
 	$(PY) bench/bench_embree.py
+
+report: $(STAMP) ## Sweep accuracy vs time on the bundled meshes into report/ (tables + pareto.png)
+	@mkdir -p report; for f in $(wildcard data/*.ply); do \
+	  stem=$$(basename $$f .ply); \
+	  echo "## $$stem"; \
+	  $(AOBAKE) sweep $$f -o report/$$stem --quiet > report/$$stem.md.tmp && mv report/$$stem.md.tmp report/$$stem.md || exit 1; \
+	  cat report/$$stem.md; \
+	done
 
 lint: $(STAMP) ## ruff check (if installed)
 	$(PY) -m ruff check aobake tests bench

@@ -151,5 +151,43 @@ def compare(reference, candidate, threshold, worst, json_path, plot_path):
     click.echo(report.to_text())
 
 
+@main.command()
+@click.argument("mesh", type=click.Path(path_type=Path))
+@click.option("-o", "--output", "out_dir", required=True, type=click.Path(path_type=Path), help="Directory for the results.")
+@click.option(
+    "--reference-rays", type=click.IntRange(min=16), default=4096, show_default=True, help="Rays of the Embree reference."
+)
+@click.option("--repeats", type=click.IntRange(min=1), default=3, show_default=True, help="Time each setting this often (best).")
+@click.option("--no-plot", is_flag=True, help="Skip pareto.png (no matplotlib needed).")
+@common_options
+def sweep(mesh, out_dir, reference_rays, repeats, no_plot, seed, threads, quiet):
+    """What accuracy costs in time: bake MESH over a grid of methods and settings.
+
+    Each setting is timed and compared with a high-ray Embree reference (cached in
+    OUTPUT). Writes sweep.csv, sweep.json and pareto.png (error against seconds,
+    log-log, Pareto front marked) into OUTPUT and prints the table.
+    """
+    from .pipeline import sweep_file
+    from .progress import make_progress
+    from .sweep import to_markdown
+
+    def on_row(row):
+        if not quiet:
+            click.echo(f"  {row.method:8s} {row.label:24s} {row.seconds:8.3f} s  RMSE {row.rmse:.4f}", err=True)
+
+    rows = sweep_file(
+        mesh,
+        out_dir,
+        reference_rays=reference_rays,
+        seed=seed,
+        threads=threads,
+        repeats=repeats,
+        plot=not no_plot,
+        progress=make_progress(quiet),
+        on_row=on_row,
+    )
+    click.echo(to_markdown(rows))
+
+
 if __name__ == "__main__":  # pragma: no cover
     sys.exit(main())

@@ -231,3 +231,75 @@ def compare_files(
     if plot_path is not None:
         plot_compare(a, b, plot_path, names=names)
     return report
+
+
+def sweep_file(
+    source: str | Path,
+    out_dir: str | Path,
+    *,
+    reference_rays: int = 4096,
+    seed: int = 0,
+    threads: int | None = None,
+    repeats: int = 1,
+    methods: Sequence[str] | None = None,
+    plot: bool = True,
+    progress: Progress | None = None,
+    on_row=None,
+):
+    """Bake ``source`` over the default grid of settings and score each against a
+    high-ray Embree reference; write ``sweep.csv``, ``sweep.json`` and ``pareto.png``.
+
+    The reference is cached in ``out_dir`` under a name keyed by the mesh's content,
+    ``reference_rays`` and ``seed``, so repeated sweeps skip it.
+
+    Returns
+    -------
+    rows : list of aobake.sweep.SweepRow
+    """
+    import hashlib
+
+    from . import sweep
+    from .io_common import atomic_write
+
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    check_output_dir(out_dir / "sweep.csv")
+    surface = as_surface(source)
+    digest = hashlib.sha256()
+    digest.update(np.ascontiguousarray(surface.positions).tobytes())
+    digest.update(np.ascontiguousarray(surface.faces).tobytes())
+    digest.update(np.ascontiguousarray(surface.normals).tobytes())
+    key = digest.hexdigest()[:16]
+    cache = out_dir / f"reference_{key}_rays{reference_rays}_seed{seed}.npy"
+    if cache.exists():
+        reference = np.load(cache, allow_pickle=False)
+    else:
+        from .raytrace import embree_ao
+
+        reference = embree_ao(surface, n_rays=reference_rays, seed=seed + 1, threads=threads, progress=progress).ao
+        with atomic_write(cache) as tmp:
+            np.save(tmp, reference)
+
+    def compute(method, options):
+        options.setdefault("threads", threads)
+        if method == "embree":
+            options.setdefault("seed", seed)
+        ao, rays, _ = _compute(surface, method, options, None)
+        return ao, rays
+
+    grid = sweep.default_grid(methods or METHODS)
+    rows = sweep.run_sweep(compute, reference, grid, repeats=repeats, on_row=on_row)
+    meta = {
+        "source": Path(str(source)).name,
+        "n_vertices": surface.n_vertices,
+        "reference": f"embree, {reference_rays} rays, seed {seed + 1}",
+        "threads": threads,
+        "version": __version__,
+    }
+    with atomic_write(out_dir / "sweep.csv") as tmp:
+        tmp.write_text(sweep.to_csv(rows))
+    with atomic_write(out_dir / "sweep.json") as tmp:
+        tmp.write_text(sweep.to_json(rows, meta) + "\n")
+    if plot:
+        sweep.plot_sweep(rows, out_dir / "pareto.png", title=f"{meta['source']} ({surface.n_vertices} vertices)")
+    return rows

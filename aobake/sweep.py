@@ -1,0 +1,170 @@
+"""What accuracy costs in time: bake one surface over a grid of settings, time each, and
+measure its error against a reference.
+
+Numbers in, numbers out: no mesh files are read or written here (``pipeline.sweep_file``
+does that); ``plot_sweep`` imports matplotlib lazily.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import time
+from collections.abc import Callable, Iterable
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from .errors import AobakeError
+from .io_common import atomic_write
+
+#: Default grid: (method, label, options). Embree 4..1024 rays, with and without
+#: adaptivity; Bunnell passes and opening parameter (when that method is available).
+EMBREE_RAYS = (4, 16, 64, 256, 1024)
+ADAPTIVE_TOLERANCES = (0.05, 0.02)
+BUNNELL_GRID = ((1, 2.0), (1, 4.0), (1, 8.0), (2, 4.0), (3, 4.0))
+
+
+@dataclass(frozen=True)
+class SweepRow:
+    """One timed bake and its error against the reference (ao = 1 - A).
+
+    ``seconds`` is the best of ``repeats`` runs; ``rays`` the rays cast (0 for methods
+    that cast none).
+    """
+
+    method: str
+    label: str
+    seconds: float
+    rays: int
+    rmse: float
+    mae: float
+    bias: float
+    p99: float
+    max_abs: float
+    pareto: bool = False
+
+
+def default_grid(methods: Iterable[str]) -> list[tuple[str, str, dict]]:
+    """The settings a sweep tries for each available method."""
+    methods = set(methods)
+    grid: list[tuple[str, str, dict]] = []
+    if "embree" in methods:
+        grid += [("embree", f"rays={n}", {"n_rays": n}) for n in EMBREE_RAYS]
+        grid += [
+            ("embree", f"rays<=1024 tol={t:g}", {"n_rays": 1024, "tolerance": t}) for t in ADAPTIVE_TOLERANCES
+        ]
+    if "bunnell" in methods:
+        grid += [("bunnell", f"passes={k} theta={th:g}", {"passes": k, "theta": th}) for k, th in BUNNELL_GRID]
+    return grid
+
+
+def run_sweep(
+    compute: Callable[[str, dict], tuple[np.ndarray, int]],
+    reference: np.ndarray,
+    grid: list[tuple[str, str, dict]],
+    *,
+    repeats: int = 1,
+    on_row: Callable[[SweepRow], None] | None = None,
+) -> list[SweepRow]:
+    """Time ``compute(method, options) -> (ao, rays)`` over ``grid`` and score each result.
+
+    Returns the rows with ``pareto`` set on those no other row beats in both seconds
+    and RMSE.
+    """
+    rows = []
+    for method, label, options in grid:
+        best, ao, rays = float("inf"), None, 0
+        for _ in range(max(1, repeats)):
+            t0 = time.perf_counter()
+            ao, rays = compute(method, dict(options))
+            best = min(best, time.perf_counter() - t0)
+        err = np.asarray(ao, dtype=np.float64) - reference
+        row = SweepRow(
+            method=method,
+            label=label,
+            seconds=best,
+            rays=int(rays),
+            rmse=float(np.sqrt(np.mean(err**2))),
+            mae=float(np.mean(np.abs(err))),
+            bias=float(np.mean(err)),
+            p99=float(np.percentile(np.abs(err), 99)),
+            max_abs=float(np.abs(err).max()),
+        )
+        rows.append(row)
+        if on_row is not None:
+            on_row(row)
+    return mark_pareto(rows)
+
+
+def mark_pareto(rows: list[SweepRow]) -> list[SweepRow]:
+    """Set ``pareto`` on rows that no other row beats in both time and RMSE."""
+    out = []
+    for r in rows:
+        dominated = any(
+            (o.seconds <= r.seconds and o.rmse <= r.rmse) and (o.seconds < r.seconds or o.rmse < r.rmse) for o in rows
+        )
+        out.append(SweepRow(**{**asdict(r), "pareto": not dominated}))
+    return out
+
+
+def to_markdown(rows: list[SweepRow]) -> str:
+    """The table printed by ``aobake sweep`` (Pareto-optimal rows marked with *)."""
+    lines = [
+        "| method | settings | seconds | rays | RMSE | MAE | bias | p99 | max | Pareto |",
+        "|---|---|---:|---:|---:|---:|---:|---:|---:|:---:|",
+    ]
+    for r in rows:
+        lines.append(
+            f"| {r.method} | {r.label} | {r.seconds:.3f} | {r.rays} | {r.rmse:.4f} | {r.mae:.4f} | "
+            f"{r.bias:+.4f} | {r.p99:.4f} | {r.max_abs:.4f} | {'*' if r.pareto else ''} |"
+        )
+    return "\n".join(lines)
+
+
+def to_csv(rows: list[SweepRow]) -> str:
+    buf = io.StringIO()
+    writer = csv.DictWriter(buf, fieldnames=list(SweepRow.__dataclass_fields__), lineterminator="\n")
+    writer.writeheader()
+    for r in rows:
+        writer.writerow(asdict(r))
+    return buf.getvalue()
+
+
+def to_json(rows: list[SweepRow], meta: dict) -> str:
+    return json.dumps({"meta": meta, "rows": [asdict(r) for r in rows]}, indent=2)
+
+
+def plot_sweep(rows: list[SweepRow], path, *, title: str = "") -> None:
+    """Error against seconds, log-log, one colour per method, the Pareto front drawn."""
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+        import matplotlib.ticker
+    except ImportError as exc:
+        raise AobakeError("plotting needs matplotlib: pip install 'aobake[plot]'") from exc
+    fig, ax = plt.subplots(figsize=(7, 5))
+    for method in sorted({r.method for r in rows}):
+        pts = [r for r in rows if r.method == method]
+        ax.scatter([r.seconds for r in pts], [max(r.rmse, 1e-6) for r in pts], label=method, s=30)
+        for r in pts:
+            ax.annotate(r.label, (r.seconds, max(r.rmse, 1e-6)), fontsize=7, xytext=(4, 3), textcoords="offset points")
+    front = sorted((r for r in rows if r.pareto), key=lambda r: r.seconds)
+    ax.plot([r.seconds for r in front], [max(r.rmse, 1e-6) for r in front], color="k", lw=1, ls="--", label="Pareto front")
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
+    ax.yaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
+    ax.set_xlabel("seconds")
+    ax.set_ylabel("RMSE of ao against the reference")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend()
+    if title:
+        ax.set_title(title)
+    fig.tight_layout()
+    with atomic_write(path) as tmp:
+        fig.savefig(tmp, format="png", dpi=110)
+    plt.close(fig)

@@ -1,0 +1,58 @@
+"""sweep: Pareto marking, outputs, the cached reference."""
+
+from __future__ import annotations
+
+import csv
+import json
+
+import numpy as np
+import trimesh
+from click.testing import CliRunner
+
+import shapes
+from aobake.cli import main
+from aobake.sweep import SweepRow, mark_pareto, run_sweep
+
+
+def _row(label, seconds, rmse):
+    return SweepRow("m", label, seconds, 0, rmse, 0.0, 0.0, 0.0, 0.0)
+
+
+def test_pareto_front():
+    rows = mark_pareto([_row("a", 1, 0.1), _row("b", 2, 0.05), _row("c", 3, 0.06), _row("d", 0.5, 0.2), _row("e", 2, 0.05)])
+    assert [r.pareto for r in rows] == [True, True, False, True, True]
+
+
+def test_run_sweep_scores_against_reference():
+    ref = np.linspace(0, 1, 11)
+    rows = run_sweep(lambda m, o: (ref + o["shift"], 7), ref, [("m", "s0", {"shift": 0.0}), ("m", "s1", {"shift": 0.1})])
+    assert rows[0].rmse == 0.0 and abs(rows[1].rmse - 0.1) < 1e-12
+    assert abs(rows[1].bias - 0.1) < 1e-12 and abs(rows[1].max_abs - 0.1) < 1e-12
+    assert rows[0].rays == 7
+
+
+def test_cli_sweep_writes_table_csv_json_png_and_caches(tmp_path, monkeypatch):
+    s, _ = shapes.sphere_on_ground(0.5, 2, cells=4)
+    src = tmp_path / "s.ply"
+    trimesh.Trimesh(s.positions, s.faces, process=False).export(src)
+    out = tmp_path / "sweep"
+    r = CliRunner().invoke(main, ["sweep", str(src), "-o", str(out), "--reference-rays", "256", "--repeats", "1", "-q"])
+    assert r.exit_code == 0, r.output
+    assert r.stdout.startswith("| method | settings |")
+    rows = list(csv.DictReader((out / "sweep.csv").open()))
+    assert len(rows) == len(r.stdout.strip().splitlines()) - 2
+    data = json.loads((out / "sweep.json").read_text())
+    assert data["meta"]["n_vertices"] == s.n_vertices and len(data["rows"]) == len(rows)
+    assert (out / "pareto.png").read_bytes()[:4] == b"\x89PNG"
+    # more rays, less error (the reference is independent: another seed)
+    emb = {row["label"]: float(row["rmse"]) for row in rows if row["method"] == "embree"}
+    assert emb["rays=4"] > emb["rays=64"] > emb["rays=1024"]
+    # second run: the reference comes from the cache
+    import aobake.raytrace as rt
+
+    calls = []
+    real = rt.embree_ao
+    monkeypatch.setattr(rt, "embree_ao", lambda *a, **k: calls.append((k.get("n_rays"), k.get("seed"))) or real(*a, **k))
+    r2 = CliRunner().invoke(main, ["sweep", str(src), "-o", str(out), "--reference-rays", "256", "--repeats", "1", "-q", "--no-plot"])
+    assert r2.exit_code == 0
+    assert calls and (256, 1) not in calls  # the reference uses seed + 1
