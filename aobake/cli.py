@@ -136,7 +136,11 @@ def bake(mesh, output, method, rays, measure, max_distance, bias, tolerance, col
 @click.option(
     "--plot", "plot_path", type=click.Path(path_type=Path), default=None, help="Histogram + scatter PNG (needs matplotlib)."
 )
-def compare(reference, candidate, threshold, worst, json_path, plot_path):
+@click.option(
+    "--render", "render_path", type=click.Path(path_type=Path), default=None, help="PNG of REFERENCE, CANDIDATE, difference."
+)
+@click.option("--up", type=click.Choice(["Y", "Z"]), default=None, help="Up axis for --render [default: the file's, else Y].")
+def compare(reference, candidate, threshold, worst, json_path, plot_path, render_path, up):
     """Error report of CANDIDATE against REFERENCE (bakes of one mesh: PLY, USD or .npy).
 
     Prints RMSE, MAE, bias, max and p50/p95/p99 of |error| (error = candidate -
@@ -146,7 +150,14 @@ def compare(reference, candidate, threshold, worst, json_path, plot_path):
     from .pipeline import compare_files
 
     report = compare_files(
-        reference, candidate, threshold=threshold, worst=worst, json_path=json_path, plot_path=plot_path
+        reference,
+        candidate,
+        threshold=threshold,
+        worst=worst,
+        json_path=json_path,
+        plot_path=plot_path,
+        render_path=render_path,
+        up=up,
     )
     click.echo(report.to_text())
 
@@ -187,6 +198,21 @@ def sweep(mesh, out_dir, reference_rays, repeats, no_plot, seed, threads, quiet)
         on_row=on_row,
     )
     click.echo(to_markdown(rows))
+
+
+@main.command()
+@click.argument("bake", type=click.Path(path_type=Path))
+@click.option("-o", "--output", required=True, type=click.Path(path_type=Path), help="Output .png.")
+@click.option("--view", type=click.Choice(["iso", "front", "side", "top"]), default="iso", show_default=True)
+@click.option("--azimuth", type=float, default=None, help="Degrees about the up axis (overrides --view).")
+@click.option("--elevation", type=click.FloatRange(-90, 90), default=None, help="Degrees above the horizon.")
+@click.option("--size", type=click.IntRange(16, 8192), default=640, show_default=True, help="Image side in pixels.")
+@click.option("--up", type=click.Choice(["Y", "Z"]), default=None, help="Up axis [default: the file's, else Y].")
+def preview(bake, output, view, azimuth, elevation, size, up):
+    """Render BAKE (a PLY or USD file with `ao`) to a PNG: AO as grey, white = open."""
+    from .pipeline import preview_file
+
+    preview_file(bake, output, size=size, up=up, view=view, azimuth=azimuth, elevation=elevation)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -192,6 +192,8 @@ def compare_files(
     worst: int = 10,
     json_path: str | Path | None = None,
     plot_path: str | Path | None = None,
+    render_path: str | Path | None = None,
+    up: str | None = None,
 ):
     """Compare two bakes of the same mesh (PLY, USD or ``.npy``); ``reference`` is "a".
 
@@ -207,11 +209,12 @@ def compare_files(
     from .formats import read_bake
     from .io_common import atomic_write
 
-    for out in (json_path, plot_path):
+    for out in (json_path, plot_path, render_path):
         if out is not None:
             check_output_dir(out)
-    if plot_path is not None and Path(plot_path).suffix.lower() != ".png":
-        raise FormatError(f"{Path(plot_path).name}: the plot is written as PNG; use a .png suffix")
+    for out in (plot_path, render_path):
+        if out is not None and Path(out).suffix.lower() != ".png":
+            raise FormatError(f"{Path(out).name}: images are written as PNG; use a .png suffix")
     a = read_bake(reference)
     b = read_bake(candidate)
     positions = None
@@ -230,6 +233,8 @@ def compare_files(
             tmp.write_text(report.to_json() + "\n")
     if plot_path is not None:
         plot_compare(a, b, plot_path, names=names)
+    if render_path is not None:
+        render_comparison(reference, candidate, render_path, up=up)
     return report
 
 
@@ -303,3 +308,53 @@ def sweep_file(
     if plot:
         sweep.plot_sweep(rows, out_dir / "pareto.png", title=f"{meta['source']} ({surface.n_vertices} vertices)")
     return rows
+
+
+def preview_file(
+    bake: str | Path,
+    output: str | Path,
+    *,
+    size: int = 640,
+    up: str | None = None,
+    view: str = "iso",
+    azimuth: float | None = None,
+    elevation: float | None = None,
+) -> None:
+    """Render a bake (a mesh file carrying ``ao``: PLY or USD) to a PNG, AO as grey."""
+    from .formats import read_bake
+    from .preview import grey, render_values, write_png
+    from .readers import load_mesh
+
+    if Path(output).suffix.lower() != ".png":
+        raise FormatError(f"{Path(output).name}: previews are written as PNG; use a .png suffix")
+    check_output_dir(output)
+    surface = load_mesh(bake)
+    ao = read_bake(bake, n_vertices=surface.n_vertices)
+    up = up or surface.metadata.get("up_axis") or DEFAULT_UP_AXIS
+    image = render_values(
+        surface.positions, surface.faces, ao, size=size, up=up, view=view, azimuth=azimuth, elevation=elevation
+    )
+    write_png(output, grey(image))
+
+
+def render_comparison(reference, candidate, output, *, size: int = 480, up: str | None = None, view: str = "iso"):
+    """Side-by-side PNG of two bakes of one mesh and their difference (blue: candidate
+    darker, red: lighter; full scale = the largest |difference|)."""
+    from .formats import read_bake
+    from .preview import error_colours, grey, render_values, write_png
+    from .readers import load_mesh
+
+    mesh_path = next((p for p in (reference, candidate) if Path(p).suffix.lower() != ".npy"), None)
+    if mesh_path is None:
+        raise FormatError(f"{Path(output).name}: rendering needs at least one bake that is a mesh (PLY or USD)")
+    surface = load_mesh(mesh_path)
+    a = read_bake(reference, n_vertices=surface.n_vertices)
+    b = read_bake(candidate, n_vertices=surface.n_vertices)
+    up = up or surface.metadata.get("up_axis") or DEFAULT_UP_AXIS
+    kw = dict(size=size, up=up, view=view)
+    ia = render_values(surface.positions, surface.faces, a, **kw)
+    ib = render_values(surface.positions, surface.faces, b, **kw)
+    diff = render_values(surface.positions, surface.faces, b - a, **kw)
+    limit = float(np.nanmax(np.abs(diff))) if np.isfinite(diff).any() else 1.0
+    gap = np.ones((size, 8, 3))
+    write_png(output, np.concatenate([grey(ia), gap, grey(ib), gap, error_colours(diff, limit)], axis=1))
