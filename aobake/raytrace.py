@@ -31,7 +31,7 @@ from .constants import (
 from .errors import InputError, NumericalError
 from .kernels import rays as _k
 from .kernels import topology as _topo
-from .mesh import Surface, vertex_edge_lengths
+from .mesh import Surface
 from .progress import NullProgress, Progress
 
 MEASURES = {"cosine": _k.COSINE, "uniform": _k.UNIFORM}
@@ -111,7 +111,7 @@ class EmbreeAO:
         return int(self.rays.sum())
 
 
-def ray_offsets(surface: Surface, scene: Scene, bias: float | None = None) -> FloatArray:
+def ray_offsets(surface: Surface, scene: Scene, bias: float | None = None, edges: FloatArray | None = None) -> FloatArray:
     """Per-vertex ray-origin offsets along the normal, in mesh units.
 
     ``RAY_OFFSET_ULPS * EPS32 * (M + e_i)``, with M the largest recentred coordinate and
@@ -121,21 +121,40 @@ def ray_offsets(surface: Surface, scene: Scene, bias: float | None = None) -> Fl
     """
     if bias is not None:
         return np.full(surface.n_vertices, float(bias))
-    edges = vertex_edge_lengths(surface.positions, surface.faces)
+    if edges is None:
+        edges = _topo.longest_edges(surface.positions, surface.faces)
     return RAY_OFFSET_ULPS * EPS32 * (scene.magnitude + edges)
 
 
 def shell_labels(surface: Surface) -> np.ndarray:
     """(n,) int64 shell id per vertex (see :func:`aobake.kernels.topology.shells`)."""
-    _, canonical = np.unique(surface.positions, axis=0, return_inverse=True)
-    canonical = canonical.reshape(-1)
-    order = np.argsort(canonical, kind="stable").astype(np.int64)
-    sorted_c = canonical[order]
-    run_start = np.flatnonzero(np.r_[True, sorted_c[1:] != sorted_c[:-1], True]).astype(np.int64)
+    pos = surface.positions
+    order = np.lexsort((pos[:, 2], pos[:, 1], pos[:, 0])).astype(np.int64)
+    sp = pos[order]
+    new_run = np.r_[True, (sp[1:] != sp[:-1]).any(axis=1), True]
+    run_start = np.flatnonzero(new_run).astype(np.int64)
     return _topo.shells(surface.faces, order, run_start, np.ascontiguousarray(surface.normals))
 
 
-def _own_side(surface: Surface, vertices: np.ndarray, points: np.ndarray, planes: np.ndarray) -> np.ndarray:
+class _VertexFaces:
+    """Triangles around each vertex (CSR), built once and only when a contact is found."""
+
+    def __init__(self, faces: IndexArray, n: int):
+        flat = faces.reshape(-1)
+        self.order = np.argsort(flat, kind="stable")
+        self.start = np.searchsorted(flat[self.order], np.arange(n + 1))
+
+    def corners(self, faces: IndexArray, vertices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(owner, corners): for each triangle around each of ``vertices``, the index
+        into ``vertices`` it belongs to and its three vertex ids."""
+        starts, stops = self.start[vertices], self.start[vertices + 1]
+        counts = stops - starts
+        owner = np.repeat(np.arange(vertices.size), counts)
+        within = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
+        return owner, faces[self.order[np.repeat(starts, counts) + within] // 3]
+
+
+def _own_side(surface: Surface, around: _VertexFaces, vertices, points, planes) -> np.ndarray:
     """Which side of a plane a vertex's own triangles lie on.
 
     For each vertex v (with plane point x and unit normal m): the sign of the mean
@@ -143,15 +162,8 @@ def _own_side(surface: Surface, vertices: np.ndarray, points: np.ndarray, planes
     excluded); 0 where that mean is within 1e-3 of their extent (all in the plane, as
     for a two-sided sheet, or balanced).
     """
-    faces = surface.faces
     pos = surface.positions
-    flat = faces.reshape(-1)
-    order = np.argsort(flat, kind="stable")
-    starts = np.searchsorted(flat[order], vertices)
-    counts = np.searchsorted(flat[order], vertices, side="right") - starts
-    owner = np.repeat(np.arange(vertices.size), counts)
-    corner_faces = order[np.repeat(starts, counts) + (np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts))] // 3
-    corners = faces[corner_faces]  # (c, 3) vertex ids of each triangle around v
+    owner, corners = around.corners(surface.faces, vertices)
     d = np.einsum("ckj,cj->ck", pos[corners] - points[owner][:, None, :], planes[owner])
     d[corners == vertices[owner][:, None]] = 0.0
     extent = np.abs(pos[corners] - pos[vertices[owner]][:, None, :]).max(axis=(1, 2))
@@ -162,7 +174,9 @@ def _own_side(surface: Surface, vertices: np.ndarray, points: np.ndarray, planes
     return np.where(total > 1e-3 * scale, 1, np.where(total < -1e-3 * scale, -1, 0))
 
 
-def contact_origins(surface: Surface, scene: Scene, offsets: FloatArray) -> tuple[np.ndarray, int]:
+def contact_origins(
+    surface: Surface, scene: Scene, offsets: FloatArray, edges: FloatArray | None = None
+) -> tuple[np.ndarray, int]:
     """Offset ray origins (float32, local frame) that stay on the open side at contacts.
 
     Each origin is p + delta n. Where another shell (a connected component: an object
@@ -177,8 +191,9 @@ def contact_origins(surface: Surface, scene: Scene, offsets: FloatArray) -> tupl
     (by the penetration depth) and the offset direction mirrored to point away from it.
 
     Shells are sorted by size into at most ``MAX_CONTACT_GROUPS`` groups probed one
-    group at a time; contacts between two shells of the same group (only in scenes
-    with more shells than groups) and within one shell are not detected.
+    group at a time (only vertices inside a group's padded bounding box are probed);
+    contacts between two shells of the same group (only in scenes with more shells than
+    groups) and within one shell are not detected.
 
     Returns
     -------
@@ -197,28 +212,40 @@ def contact_origins(surface: Surface, scene: Scene, offsets: FloatArray) -> tupl
     with_faces = np.flatnonzero(sizes > 0)
     if with_faces.size < 2:
         return origins.astype(np.float32), 0
+    if edges is None:
+        edges = _topo.longest_edges(surface.positions, surface.faces)
     n_groups = min(with_faces.size, MAX_CONTACT_GROUPS)
     rank = np.full(shell.max() + 1, -1, dtype=np.int64)
     rank[with_faces[np.argsort(-sizes[with_faces], kind="stable")]] = np.arange(with_faces.size)
     group_of_face = rank[face_shell] % n_groups
     vertex_group = np.where(rank[shell] >= 0, rank[shell] % n_groups, -1)
-    depth = np.maximum((1.0 + CONTACT_PROBE_SLACK) * offsets, CONTACT_DEPTH * vertex_edge_lengths(surface.positions, surface.faces))
+    reach = offsets + np.maximum((1.0 + CONTACT_PROBE_SLACK) * offsets, CONTACT_DEPTH * edges)
     candidates = n.any(axis=1) & (offsets > 0)
     moved = np.zeros(surface.n_vertices, dtype=bool)
+    around = None
     for g in range(n_groups):
-        idx = np.flatnonzero(candidates & (vertex_group != g) & ~moved)
+        group_faces = surface.faces[group_of_face == g]
+        used = np.unique(group_faces)
+        lo, hi = p[used].min(axis=0), p[used].max(axis=0)
+        near = ((origins >= lo - reach[:, None]) & (origins <= hi + reach[:, None])).all(axis=1)
+        idx = np.flatnonzero(candidates & near & (vertex_group != g) & ~moved)
         if idx.size == 0:
             continue
-        other = Scene(p, surface.faces[group_of_face == g], recentred=True)
-        hit = other.intersect(origins[idx].astype(np.float32), (-n[idx]).astype(np.float32), offsets[idx] + depth[idx])
+        local_faces = np.searchsorted(used, group_faces)
+        other = Scene(p[used], local_faces, recentred=True)
+        hit = other.intersect(origins[idx].astype(np.float32), (-n[idx]).astype(np.float32), reach[idx])
         rows = np.flatnonzero(hit["primID"] >= 0)
+        if rows.size == 0:
+            continue
         m = hit["Ng"][rows].astype(np.float64)
         m_len = np.linalg.norm(m, axis=1)
         ok = m_len > 0
         rows, m = rows[ok], m[ok] / m_len[ok, None]
         v = idx[rows]
         x = origins[v] - hit["tfar"][rows, None].astype(np.float64) * n[v]
-        side = _own_side(surface, v, x + scene.center, m)
+        if around is None:
+            around = _VertexFaces(surface.faces, surface.n_vertices)
+        side = _own_side(surface, around, v, x + scene.center, m)
         keep = side != 0
         v, x, m = v[keep], x[keep], m[keep] * side[keep, None]  # m now points to the own side
         dot = np.einsum("ij,ij->i", n[v], m)
@@ -243,15 +270,39 @@ def _rounds(n_rays: int, adaptive: bool) -> list[tuple[int, int]]:
 
 
 def half_width(hits: np.ndarray, n: np.ndarray) -> np.ndarray:
-    """95% Agresti-Coull half-width of a binomial proportion hits/n.
+    """95% Agresti-Coull half-width of a binomial proportion hits/n (independent samples).
 
-    Conservative for stratified samples (their variance is below the binomial one) and
-    never zero, so a vertex with no hits after a few rays is not declared exact.
+    Never zero, so a vertex with no hits after a few rays is not declared exact.
     """
     z2 = Z95 * Z95
     nt = n + z2
     pt = (hits + 0.5 * z2) / nt
     return Z95 * np.sqrt(pt * (1.0 - pt) / nt)
+
+
+def stratified_half_width(hits: np.ndarray, first_half_hits: np.ndarray, n: int) -> np.ndarray:
+    """95% half-width of the estimate hits/n from an Owen-scrambled (0,2)-sequence prefix.
+
+    Two estimates, the larger wins:
+
+    - the binomial (Agresti-Coull) half-width at an effective sample size
+      n_eff = n sqrt(n / 16): scrambled nets converge like n^-3/4 on AO integrands
+      (measured: bench/accuracy_embree.py, tests), and at n = 16 this is the plain
+      binomial bound;
+    - Z95 |m1 - m2| / 2 from the two halves of the prefix (each half is itself a
+      scrambled net, an unbiased estimate), which catches integrands where
+      stratification gains less than assumed.
+    """
+    n_eff = n * math.sqrt(n / ADAPTIVE_FIRST_ROUND)
+    z2 = Z95 * Z95
+    p = hits / n
+    nt = n_eff + z2
+    pt = (p * n_eff + 0.5 * z2) / nt
+    binomial = Z95 * np.sqrt(pt * (1.0 - pt) / nt)
+    half = n / 2
+    m1 = first_half_hits / half
+    m2 = (hits - first_half_hits) / half
+    return np.maximum(binomial, Z95 * 0.5 * np.abs(m1 - m2))
 
 
 def embree_ao(
@@ -288,7 +339,8 @@ def embree_ao(
     seed : int
         Key of the per-vertex Owen-scrambled Sobol directions.
     tolerance : float, optional
-        Adaptive sampling: stop a vertex once its 95% interval half-width is below this.
+        Adaptive sampling: stop a vertex once its 95% interval half-width is below this
+        (see :func:`stratified_half_width`).
     threads : int, optional
         Worker threads (default: all cores). The result does not depend on it.
     chunk_rays : int
@@ -333,9 +385,10 @@ def embree_ao(
 
     n = surface.n_vertices
     scene = Scene(surface.positions, surface.faces, robust=robust)
-    offsets = ray_offsets(surface, scene, bias)
+    edges = _topo.longest_edges(surface.positions, surface.faces)
+    offsets = ray_offsets(surface, scene, bias, edges)
     if contact_fix:
-        origins, contacts = contact_origins(surface, scene, offsets)
+        origins, contacts = contact_origins(surface, scene, offsets, edges)
     else:
         origins, contacts = (scene.local + offsets[:, None] * surface.normals).astype(np.float32), 0
     normals = np.ascontiguousarray(surface.normals, dtype=np.float64)
@@ -360,13 +413,20 @@ def embree_ao(
     pool = ThreadPoolExecutor(max_workers=threads)
     try:
         for j0, j1 in _rounds(n_rays, tolerance is not None):
-            per_chunk = max(1, chunk_rays // (j1 - j0))
+            before = hits[active]
+            # at least 4 chunks per thread so small meshes keep every core busy and ray
+            # generation overlaps tracing; at most chunk_rays rays per chunk (memory)
+            per_chunk = max(1, min(chunk_rays // (j1 - j0), -(-active.size // (4 * threads))))
             chunks = [active[s : s + per_chunk] for s in range(0, active.size, per_chunk)]
             for done in pool.map(lambda c: trace(c, j0, j1), chunks):
                 progress.advance(done)
             cast[active] = j1
             if tolerance is not None and j1 < n_rays:
-                keep = half_width(hits[active], cast[active]) >= tolerance
+                if j0 == 0:
+                    width = half_width(hits[active], cast[active])
+                else:  # rounds double: this round is the second half of the prefix
+                    width = stratified_half_width(hits[active], before, j1)
+                keep = width >= tolerance
                 progress.advance(int((~keep).sum()) * (n_rays - j1))
                 active = active[keep]
                 if active.size == 0:

@@ -31,7 +31,7 @@ def surfaces():
 def _run(method, surface):
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # a RuntimeWarning on the way to a NaN fails the test
-        with np.errstate(all="raise"):
+        with np.errstate(divide="raise", over="raise", invalid="raise", under="ignore"):  # underflow is harmless
             return METHODS[method](surface)
 
 

@@ -47,10 +47,12 @@ def generate_rays(origins, normals, keys, vertex_index, j0, j1, mode, out_org, o
         nx, ny, nz = normals[v, 0], normals[v, 1], normals[v, 2]
         has_normal = nx != 0.0 or ny != 0.0 or nz != 0.0
         key = keys[v]
+        s0, s1 = rng.scramble_seeds(key)
+        tx, ty, tz, bx, by, bz = warps.frame(nx, ny, nz) if has_normal else (1.0, 0.0, 0.0, 0.0, 1.0, 0.0)
         for s in range(per):
             j = j0 + s
             if stratified:
-                u0, u1 = rng.scrambled_sobol2(j, key)
+                u0, u1 = rng.scrambled_sobol2_seeded(j, s0, s1)
             else:
                 u0, u1 = rng.random2(j, key)
             if not has_normal:
@@ -60,7 +62,9 @@ def generate_rays(origins, normals, keys, vertex_index, j0, j1, mode, out_org, o
                     x, y, z = warps.square_to_cosine_hemisphere(u0, u1)
                 else:
                     x, y, z = warps.square_to_uniform_hemisphere(u0, u1)
-                dx, dy, dz = warps.to_world(x, y, z, nx, ny, nz)
+                dx = x * tx + y * bx + z * nx
+                dy = x * ty + y * by + z * ny
+                dz = x * tz + y * bz + z * nz
             r = a * per + s
             out_org[r, 0] = origins[v, 0]
             out_org[r, 1] = origins[v, 1]

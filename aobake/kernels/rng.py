@@ -92,14 +92,25 @@ def sobol2_32(index):
 
 
 @njit(cache=True, fastmath=FASTMATH, inline="always")
-def scrambled_sobol2(index, key):
-    """Point ``index`` of a 2-D Owen-scrambled Sobol sequence keyed by ``key``, in [0, 1)^2."""
+def scramble_seeds(key):
+    """The two per-dimension Owen seeds of a sequence keyed by ``key``."""
+    return hash2(key, 0) & _M32, hash2(key, 1) & _M32
+
+
+@njit(cache=True, fastmath=FASTMATH, inline="always")
+def scrambled_sobol2_seeded(index, s0, s1):
+    """Point ``index`` of the 2-D Sobol sequence Owen-scrambled with seeds (s0, s1)."""
     x0, x1 = sobol2_32(index)
-    s0 = hash2(key, 0) & _M32
-    s1 = hash2(key, 1) & _M32
     u0 = float(owen_scramble32(x0, s0)) * _INV32
     u1 = float(owen_scramble32(x1, s1)) * _INV32
     return u0, u1
+
+
+@njit(cache=True, fastmath=FASTMATH, inline="always")
+def scrambled_sobol2(index, key):
+    """Point ``index`` of a 2-D Owen-scrambled Sobol sequence keyed by ``key``, in [0, 1)^2."""
+    s0, s1 = scramble_seeds(key)
+    return scrambled_sobol2_seeded(index, s0, s1)
 
 
 @njit(cache=True, fastmath=FASTMATH, inline="always")

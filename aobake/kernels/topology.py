@@ -119,3 +119,22 @@ def connected_components(faces, n):
             count += 1
         labels[i] = root_label[r]
     return labels
+
+
+@njit(cache=True)
+def longest_edges(positions, faces):
+    """(n,) float64: the longest edge touching each vertex (0 for unreferenced ones)."""
+    out = np.zeros(positions.shape[0])
+    for f in range(faces.shape[0]):
+        for k in range(3):
+            i = faces[f, k]
+            j = faces[f, (k + 1) % 3]
+            dx = positions[j, 0] - positions[i, 0]
+            dy = positions[j, 1] - positions[i, 1]
+            dz = positions[j, 2] - positions[i, 2]
+            length = np.sqrt(dx * dx + dy * dy + dz * dz)
+            if length > out[i]:
+                out[i] = length
+            if length > out[j]:
+                out[j] = length
+    return out
