@@ -9,7 +9,16 @@ from __future__ import annotations
 
 __version__ = "0.1.0"
 
-__all__ = ["bake", "bake_file", "load_mesh", "embree_ao", "write_ply", "write_usd", "write_bake", "__version__"]
+__all__ = [
+    "bake",
+    "bake_file",
+    "load_mesh",
+    "embree_ao",
+    "write_ply",
+    "write_usd",
+    "write_bake",
+    "__version__",
+]
 
 _LAZY = {
     "bake": "pipeline",

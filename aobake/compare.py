@@ -83,10 +83,18 @@ class Report:
         ]
         if self.worst:
             lines.append("  worst vertices:")
-            lines.append(f"    {'index':>8}  {'position':>32}  {a[:10]:>10}  {b[:10]:>10}  {'error':>9}")
+            lines.append(
+                f"    {'index':>8}  {'position':>32}  {a[:10]:>10}  {b[:10]:>10}  {'error':>9}"
+            )
             for w in self.worst:
-                pos = "" if w.position is None else "(" + ", ".join(f"{c:.4g}" for c in w.position) + ")"
-                lines.append(f"    {w.index:>8}  {pos:>32}  {w.a:>10.5f}  {w.b:>10.5f}  {w.error:>+9.5f}")
+                pos = (
+                    ""
+                    if w.position is None
+                    else "(" + ", ".join(f"{c:.4g}" for c in w.position) + ")"
+                )
+                lines.append(
+                    f"    {w.index:>8}  {pos:>32}  {w.a:>10.5f}  {w.b:>10.5f}  {w.error:>+9.5f}"
+                )
         return "\n".join(lines)
 
 
@@ -123,11 +131,12 @@ def compare_ao(
     b = np.asarray(b, dtype=np.float64).reshape(-1)
     if a.shape != b.shape:
         raise InputError(
-            names[1], f"has {b.size} vertices but {names[0]} has {a.size}; compare bakes of the same mesh"
+            names[1],
+            f"has {b.size} vertices but {names[0]} has {a.size}; compare bakes of the same mesh",
         )
     if a.size == 0:
         raise InputError(names[0], "has no vertices")
-    for name, x in zip(names, (a, b)):
+    for name, x in zip(names, (a, b), strict=True):
         if not np.isfinite(x).all():
             raise InputError(name, f"{int((~np.isfinite(x)).sum())} non-finite AO values")
     err = b - a
@@ -136,7 +145,12 @@ def compare_ao(
     order = np.argsort(-abs_err, kind="stable")[: max(0, int(worst))]
     pos = None if positions is None else np.asarray(positions, dtype=np.float64)
     rows = tuple(
-        WorstVertex(int(i), None if pos is None else tuple(float(c) for c in pos[i]), float(a[i]), float(b[i]))
+        WorstVertex(
+            int(i),
+            None if pos is None else tuple(float(c) for c in pos[i]),
+            float(a[i]),
+            float(b[i]),
+        )
         for i in order
     )
     return Report(

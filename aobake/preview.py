@@ -46,7 +46,15 @@ def camera(positions, *, up: str = "Y", azimuth: float = -55.0, elevation: float
 
 
 def render_values(
-    positions, faces, values, *, size: int = 640, up: str = "Y", view: str = "iso", azimuth=None, elevation=None
+    positions,
+    faces,
+    values,
+    *,
+    size: int = 640,
+    up: str = "Y",
+    view: str = "iso",
+    azimuth=None,
+    elevation=None,
 ):
     """A (size, size) float image of per-vertex ``values`` on the visible surface; NaN
     where no surface is seen.
@@ -76,7 +84,11 @@ def render_values(
     depth = np.full((size, size), np.inf)
     image = np.full((size, size), np.nan)
     _k.rasterize(
-        screen, np.ascontiguousarray(faces, dtype=np.int64), np.ascontiguousarray(values, dtype=np.float64), depth, image
+        screen,
+        np.ascontiguousarray(faces, dtype=np.int64),
+        np.ascontiguousarray(values, dtype=np.float64),
+        depth,
+        image,
     )
     return image
 
@@ -96,10 +108,20 @@ def png_bytes(image) -> bytes:
     rows = np.concatenate([np.zeros((h, 1), dtype=np.uint8), pixels.reshape(h, -1)], axis=1)
 
     def chunk(kind: bytes, data: bytes) -> bytes:
-        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF)
+        return (
+            struct.pack(">I", len(data))
+            + kind
+            + data
+            + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF)
+        )
 
     header = struct.pack(">IIBBBBB", w, h, 8, colour, 0, 0, 0)
-    return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header) + chunk(b"IDAT", zlib.compress(rows.tobytes(), 6)) + chunk(b"IEND", b"")
+    return (
+        b"\x89PNG\r\n\x1a\n"
+        + chunk(b"IHDR", header)
+        + chunk(b"IDAT", zlib.compress(rows.tobytes(), 6))
+        + chunk(b"IEND", b"")
+    )
 
 
 def error_colours(err, limit: float) -> np.ndarray:

@@ -70,7 +70,9 @@ class StderrProgress:
         elapsed = time.perf_counter() - self.t0
         eta = elapsed * (1.0 - frac) / frac if frac > 0 else 0.0
         bar = "#" * filled + "-" * (self.width - filled)
-        self.stream.write(f"\r{self.label} [{bar}] {100 * frac:5.1f}% {elapsed:6.1f}s eta {eta:5.1f}s")
+        self.stream.write(
+            f"\r{self.label} [{bar}] {100 * frac:5.1f}% {elapsed:6.1f}s eta {eta:5.1f}s"
+        )
         self.stream.flush()
 
 

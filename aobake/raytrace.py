@@ -55,7 +55,14 @@ class Scene:
     to the mesh's own size, so AO does not depend on where the mesh is.
     """
 
-    def __init__(self, positions: FloatArray, faces: IndexArray, *, robust: bool = False, recentred: bool = False):
+    def __init__(
+        self,
+        positions: FloatArray,
+        faces: IndexArray,
+        *,
+        robust: bool = False,
+        recentred: bool = False,
+    ):
         from embreex import rtcore_scene
         from embreex.mesh_construction import TriangleMesh
 
@@ -81,7 +88,11 @@ class Scene:
     def intersect(self, origins, directions, tfar: np.ndarray) -> dict:
         """Closest hits: dict with ``primID`` (k,) int32 (-1 = miss), ``tfar``, ``Ng`` (k, 3)."""
         return self._scene.run(
-            origins, directions, dists=np.ascontiguousarray(tfar, dtype=np.float32), query="INTERSECT", output=True
+            origins,
+            directions,
+            dists=np.ascontiguousarray(tfar, dtype=np.float32),
+            query="INTERSECT",
+            output=True,
         )
 
 
@@ -111,7 +122,9 @@ class EmbreeAO:
         return int(self.rays.sum())
 
 
-def ray_offsets(surface: Surface, scene: Scene, bias: float | None = None, edges: FloatArray | None = None) -> FloatArray:
+def ray_offsets(
+    surface: Surface, scene: Scene, bias: float | None = None, edges: FloatArray | None = None
+) -> FloatArray:
     """Per-vertex ray-origin offsets along the normal, in mesh units.
 
     ``RAY_OFFSET_ULPS * EPS32 * (M + e_i)``, with M the largest recentred coordinate and
@@ -233,7 +246,9 @@ def contact_origins(
             continue
         local_faces = np.searchsorted(used, group_faces)
         other = Scene(p[used], local_faces, recentred=True)
-        hit = other.intersect(origins[idx].astype(np.float32), (-n[idx]).astype(np.float32), reach[idx])
+        hit = other.intersect(
+            origins[idx].astype(np.float32), (-n[idx]).astype(np.float32), reach[idx]
+        )
         rows = np.flatnonzero(hit["primID"] >= 0)
         if rows.size == 0:
             continue
@@ -418,7 +433,7 @@ def embree_ao(
             # generation overlaps tracing; at most chunk_rays rays per chunk (memory)
             per_chunk = max(1, min(chunk_rays // (j1 - j0), -(-active.size // (4 * threads))))
             chunks = [active[s : s + per_chunk] for s in range(0, active.size, per_chunk)]
-            for done in pool.map(lambda c: trace(c, j0, j1), chunks):
+            for done in pool.map(lambda c, j0=j0, j1=j1: trace(c, j0, j1), chunks):
                 progress.advance(done)
             cast[active] = j1
             if tolerance is not None and j1 < n_rays:

@@ -54,12 +54,16 @@ def sample_directions(
     """
     normals = np.ascontiguousarray(normals, dtype=np.float64)
     n = normals.shape[0]
-    vertex_index = np.arange(n, dtype=np.int64) if vertices is None else np.asarray(vertices, dtype=np.int64)
+    vertex_index = (
+        np.arange(n, dtype=np.int64) if vertices is None else np.asarray(vertices, dtype=np.int64)
+    )
     keys = _k.vertex_keys(np.uint64(seed), n)
     k = vertex_index.size * n_rays
     org = np.zeros((k, 3), dtype=np.float32)
     dirs = np.zeros((k, 3), dtype=np.float32)
     origins = np.zeros((n, 3), dtype=np.float32)
     mode = MEASURES[measure] + (0 if stratified else 2)
-    _k.generate_rays(origins, normals, keys, vertex_index, int(start), int(start + n_rays), mode, org, dirs)
+    _k.generate_rays(
+        origins, normals, keys, vertex_index, int(start), int(start + n_rays), mode, org, dirs
+    )
     return dirs.reshape(vertex_index.size, n_rays, 3)

@@ -53,10 +53,14 @@ def default_grid(methods: Iterable[str]) -> list[tuple[str, str, dict]]:
     if "embree" in methods:
         grid += [("embree", f"rays={n}", {"n_rays": n}) for n in EMBREE_RAYS]
         grid += [
-            ("embree", f"rays<=1024 tol={t:g}", {"n_rays": 1024, "tolerance": t}) for t in ADAPTIVE_TOLERANCES
+            ("embree", f"rays<=1024 tol={t:g}", {"n_rays": 1024, "tolerance": t})
+            for t in ADAPTIVE_TOLERANCES
         ]
     if "bunnell" in methods:
-        grid += [("bunnell", f"passes={k} theta={th:g}", {"passes": k, "theta": th}) for k, th in BUNNELL_GRID]
+        grid += [
+            ("bunnell", f"passes={k} theta={th:g}", {"passes": k, "theta": th})
+            for k, th in BUNNELL_GRID
+        ]
     return grid
 
 
@@ -103,7 +107,9 @@ def mark_pareto(rows: list[SweepRow]) -> list[SweepRow]:
     out = []
     for r in rows:
         dominated = any(
-            (o.seconds <= r.seconds and o.rmse <= r.rmse) and (o.seconds < r.seconds or o.rmse < r.rmse) for o in rows
+            (o.seconds <= r.seconds and o.rmse <= r.rmse)
+            and (o.seconds < r.seconds or o.rmse < r.rmse)
+            for o in rows
         )
         out.append(SweepRow(**{**asdict(r), "pareto": not dominated}))
     return out
@@ -125,7 +131,9 @@ def to_markdown(rows: list[SweepRow]) -> str:
 
 def to_csv(rows: list[SweepRow]) -> str:
     buf = io.StringIO()
-    writer = csv.DictWriter(buf, fieldnames=list(SweepRow.__dataclass_fields__), lineterminator="\n")
+    writer = csv.DictWriter(
+        buf, fieldnames=list(SweepRow.__dataclass_fields__), lineterminator="\n"
+    )
     writer.writeheader()
     for r in rows:
         writer.writerow(asdict(r))
@@ -151,9 +159,22 @@ def plot_sweep(rows: list[SweepRow], path, *, title: str = "") -> None:
         pts = [r for r in rows if r.method == method]
         ax.scatter([r.seconds for r in pts], [max(r.rmse, 1e-6) for r in pts], label=method, s=30)
         for r in pts:
-            ax.annotate(r.label, (r.seconds, max(r.rmse, 1e-6)), fontsize=7, xytext=(4, 3), textcoords="offset points")
+            ax.annotate(
+                r.label,
+                (r.seconds, max(r.rmse, 1e-6)),
+                fontsize=7,
+                xytext=(4, 3),
+                textcoords="offset points",
+            )
     front = sorted((r for r in rows if r.pareto), key=lambda r: r.seconds)
-    ax.plot([r.seconds for r in front], [max(r.rmse, 1e-6) for r in front], color="k", lw=1, ls="--", label="Pareto front")
+    ax.plot(
+        [r.seconds for r in front],
+        [max(r.rmse, 1e-6) for r in front],
+        color="k",
+        lw=1,
+        ls="--",
+        label="Pareto front",
+    )
     ax.set_xscale("log")
     ax.set_yscale("log")
     ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())

@@ -16,9 +16,9 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
-import shapes  # noqa: E402
-
 from aobake.raytrace import embree_ao  # noqa: E402
+
+import shapes  # noqa: E402
 
 SEEDS = 64
 
@@ -28,7 +28,9 @@ def _row(name, exact, estimates, n):
     sigma = math.sqrt(max(exact * (1 - exact), 0.0) / n)
     rms = float(np.sqrt(np.mean(err**2)))
     gain = sigma / rms if rms > 0 else float("inf")
-    print(f"| {name} | {n} | {exact:.6f} | {err.mean():.2e} | {err.max():.2e} | {sigma:.2e} | {gain:.1f}x |")
+    print(
+        f"| {name} | {n} | {exact:.6f} | {err.mean():.2e} | {err.max():.2e} | {sigma:.2e} | {gain:.1f}x |"
+    )
 
 
 def main() -> None:
@@ -54,7 +56,12 @@ def main() -> None:
     _row("inside a closed sphere (all vertices)", 1.0, [1 - embree_ao(s, n_rays=64).ao.min()], 64)
     for scale in (1e-5, 1.0, 1e5):
         s = shapes.random_convex(3, 2, scale)
-        _row(f"convex body at scale {scale:g} (all vertices)", 0.0, [1 - embree_ao(s, n_rays=256).ao.min()], 256)
+        _row(
+            f"convex body at scale {scale:g} (all vertices)",
+            0.0,
+            [1 - embree_ao(s, n_rays=256).ao.min()],
+            256,
+        )
 
 
 if __name__ == "__main__":

@@ -9,6 +9,7 @@ import numpy as np
 import trimesh
 
 from aobake.mesh import Surface, surface_from_arrays
+
 from shapes import ground_grid
 
 
@@ -97,7 +98,13 @@ def needles_and_slivers() -> Surface:
     k = len(p)
     t = np.linspace(0.1, 0.9, 9)
     apex = np.array([[0.0, 0.0, 0.8]])
-    needles_p = np.vstack([apex, np.c_[np.cos(t), np.sin(t), np.full(9, 0.3)], np.c_[np.cos(t) + 1e-9, np.sin(t), np.full(9, 0.3)]])
+    needles_p = np.vstack(
+        [
+            apex,
+            np.c_[np.cos(t), np.sin(t), np.full(9, 0.3)],
+            np.c_[np.cos(t) + 1e-9, np.sin(t), np.full(9, 0.3)],
+        ]
+    )
     needles_f = np.array([[0, 1 + i, 10 + i] for i in range(9)])
     zero_area = np.array([[1, 2, 3], [4, 4, 5], [6, 6, 6]])  # collinear, repeated index, a point
     positions = np.vstack([p, needles_p])
@@ -133,7 +140,9 @@ def open_bowl(rings: int = 12, segments: int = 48) -> Surface:
     theta = np.pi - 0.5 * np.pi * np.arange(1, rings + 1) / rings  # from near the pole to pi/2
     phi = 2 * np.pi * np.arange(segments) / segments
     t, p = np.meshgrid(theta, phi, indexing="ij")
-    ring_pts = np.stack([np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t)], -1).reshape(-1, 3)
+    ring_pts = np.stack([np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t)], -1).reshape(
+        -1, 3
+    )
     ring_pts[-segments:, 2] = 0.0
     positions = np.vstack([[0.0, 0.0, -1.0], ring_pts])
     j = np.arange(segments)

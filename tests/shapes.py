@@ -80,7 +80,9 @@ def ground_grid(half: float, cells: int, z: float = 0.0):
     return positions, faces
 
 
-def sphere_on_ground(radius: float = 0.5, subdivisions: int = 3, gap: float = 0.0, cells: int = 16) -> tuple[Surface, int]:
+def sphere_on_ground(
+    radius: float = 0.5, subdivisions: int = 3, gap: float = 0.0, cells: int = 16
+) -> tuple[Surface, int]:
     """An icosphere with a vertex pointing straight down, its lowest point at z = gap,
     over a ground grid at z = 0 (side 8 radius).
 
@@ -96,7 +98,9 @@ def sphere_on_ground(radius: float = 0.5, subdivisions: int = 3, gap: float = 0.
     target = np.array([0.0, 0.0, -1.0])
     axis = np.cross(a, target)
     if np.linalg.norm(axis) > 1e-15:
-        rot = trimesh.transformations.rotation_matrix(np.arccos(np.clip(a @ target, -1, 1)), axis)[:3, :3]
+        rot = trimesh.transformations.rotation_matrix(np.arccos(np.clip(a @ target, -1, 1)), axis)[
+            :3, :3
+        ]
         v = v @ rot.T
     v[low] = [0.0, 0.0, -radius]
     v[:, 2] += radius + gap

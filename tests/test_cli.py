@@ -14,9 +14,10 @@ import pytest
 import trimesh
 from click.testing import CliRunner
 
-import shapes
 from aobake.cli import main
 from aobake.formats import read_bake
+
+import shapes
 
 
 @pytest.fixture
@@ -50,7 +51,9 @@ def test_bake_writes_each_format(runner, scene_ply, tmp_path, suffix):
 
 
 def test_quiet_prints_nothing(runner, scene_ply, tmp_path):
-    result = runner.invoke(main, ["bake", str(scene_ply), "-o", str(tmp_path / "o.ply"), "--rays", "8", "--quiet"])
+    result = runner.invoke(
+        main, ["bake", str(scene_ply), "-o", str(tmp_path / "o.ply"), "--rays", "8", "--quiet"]
+    )
     assert result.exit_code == 0
     assert result.stderr == "" and result.stdout == ""
 
@@ -59,7 +62,23 @@ def test_same_seed_same_file_bytes(runner, scene_ply, tmp_path):
     outs = []
     for k, threads in enumerate(["1", "2"]):
         out = tmp_path / f"o{k}.usda"
-        assert runner.invoke(main, ["bake", str(scene_ply), "-o", str(out), "--rays", "16", "--threads", threads, "-q"]).exit_code == 0
+        assert (
+            runner.invoke(
+                main,
+                [
+                    "bake",
+                    str(scene_ply),
+                    "-o",
+                    str(out),
+                    "--rays",
+                    "16",
+                    "--threads",
+                    threads,
+                    "-q",
+                ],
+            ).exit_code
+            == 0
+        )
         outs.append(out.read_bytes())
     assert outs[0] == outs[1]
 
@@ -90,11 +109,29 @@ BAD_INPUTS = {
     "directory": (lambda d: (d / "adir.ply").mkdir() or d / "adir.ply", "adir.ply: "),
     "garbage_ply": (lambda d: _write(d / "garbage.ply", os.urandom(256)), "garbage.ply: "),
     "garbage_obj": (lambda d: _write(d / "garbage.obj", b"\x00\xff" * 100), "garbage.obj: "),
-    "truncated": (lambda d: _write(d / "trunc.ply", _ascii_ply([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]])[:-12]), "trunc.ply: "),
+    "truncated": (
+        lambda d: _write(
+            d / "trunc.ply", _ascii_ply([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]])[:-12]
+        ),
+        "trunc.ply: ",
+    ),
     "empty": (lambda d: _write(d / "empty.ply", _ascii_ply([], [])), "empty.ply: "),
-    "no_faces": (lambda d: _write(d / "nofaces.ply", _ascii_ply([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [])), "nofaces.ply: "),
-    "nan": (lambda d: _write(d / "nan.ply", _ascii_ply([[0, 0, 0], ["nan", 0, 0], [0, 1, 0]], [[0, 1, 2]])), "nan.ply: "),
-    "index": (lambda d: _write(d / "index.ply", _ascii_ply([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 7]])), "index.ply: "),
+    "no_faces": (
+        lambda d: _write(d / "nofaces.ply", _ascii_ply([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [])),
+        "nofaces.ply: ",
+    ),
+    "nan": (
+        lambda d: _write(
+            d / "nan.ply", _ascii_ply([[0, 0, 0], ["nan", 0, 0], [0, 1, 0]], [[0, 1, 2]])
+        ),
+        "nan.ply: ",
+    ),
+    "index": (
+        lambda d: _write(
+            d / "index.ply", _ascii_ply([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 7]])
+        ),
+        "index.ply: ",
+    ),
     "suffix": (lambda d: _write(d / "mesh.xyz", "1 2 3\n"), "mesh.xyz: "),
 }
 
@@ -114,19 +151,29 @@ def test_bad_input_is_one_line_error(runner, tmp_path, case):
 
 def test_unsupported_output_suffix_fails_before_loading(runner, tmp_path):
     # the input does not even exist: the suffix check comes first
-    result = runner.invoke(main, ["bake", str(tmp_path / "nothing.ply"), "-o", str(tmp_path / "out.obj")])
+    result = runner.invoke(
+        main, ["bake", str(tmp_path / "nothing.ply"), "-o", str(tmp_path / "out.obj")]
+    )
     assert result.exit_code == 1
-    assert result.stderr == "Error: out.obj: unsupported output suffix '.obj'; use one of .ply, .usd, .usda, .usdc\n"
+    assert (
+        result.stderr
+        == "Error: out.obj: unsupported output suffix '.obj'; use one of .ply, .usd, .usda, .usdc\n"
+    )
 
 
 def test_missing_output_directory(runner, scene_ply, tmp_path):
     result = runner.invoke(main, ["bake", str(scene_ply), "-o", str(tmp_path / "no" / "out.ply")])
     assert result.exit_code == 1
-    assert result.stderr.startswith("Error: out.ply: output directory ") and "does not exist" in result.stderr
+    assert (
+        result.stderr.startswith("Error: out.ply: output directory ")
+        and "does not exist" in result.stderr
+    )
 
 
 def test_usage_errors_exit_2(runner, scene_ply, tmp_path):
-    result = runner.invoke(main, ["bake", str(scene_ply), "-o", str(tmp_path / "o.ply"), "--rays", "0"])
+    result = runner.invoke(
+        main, ["bake", str(scene_ply), "-o", str(tmp_path / "o.ply"), "--rays", "0"]
+    )
     assert result.exit_code == 2
 
 
@@ -137,7 +184,18 @@ def test_interrupt_leaves_no_output(tmp_path):
     trimesh.Trimesh(s.positions, s.faces, process=False).export(src)
     out = tmp_path / "big_out.usdc"
     proc = subprocess.Popen(
-        [sys.executable, "-m", "aobake", "bake", str(src), "-o", str(out), "--rays", "100000", "-q"],
+        [
+            sys.executable,
+            "-m",
+            "aobake",
+            "bake",
+            str(src),
+            "-o",
+            str(out),
+            "--rays",
+            "100000",
+            "-q",
+        ],
         stderr=subprocess.PIPE,
         text=True,
     )

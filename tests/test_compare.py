@@ -48,7 +48,16 @@ def test_cli_compare_npy_json_plot(tmp_path):
     np.save(a, np.linspace(0, 1, 50))
     np.save(b, np.linspace(0, 1, 50) * 0.9)
     result = CliRunner().invoke(
-        main, ["compare", str(a), str(b), "--json", str(tmp_path / "r.json"), "--plot", str(tmp_path / "r.png")]
+        main,
+        [
+            "compare",
+            str(a),
+            str(b),
+            "--json",
+            str(tmp_path / "r.json"),
+            "--plot",
+            str(tmp_path / "r.png"),
+        ],
     )
     assert result.exit_code == 0, result.output
     assert "RMSE" in result.stdout and "b.npy against a.npy" in result.stdout
@@ -68,16 +77,29 @@ def test_cli_compare_mismatch_is_one_line(tmp_path):
 
 
 def test_cli_compare_mesh_bakes_report_positions(tmp_path):
-    import shapes
     import trimesh
+
+    import shapes
 
     s, _ = shapes.sphere_on_ground(0.5, 2, cells=4)
     src = tmp_path / "s.ply"
     trimesh.Trimesh(s.positions, s.faces, process=False).export(src)
     r = CliRunner()
-    assert r.invoke(main, ["bake", str(src), "-o", str(tmp_path / "hi.ply"), "--rays", "256", "-q"]).exit_code == 0
-    assert r.invoke(main, ["bake", str(src), "-o", str(tmp_path / "lo.usda"), "--rays", "8", "-q"]).exit_code == 0
-    result = r.invoke(main, ["compare", str(tmp_path / "hi.ply"), str(tmp_path / "lo.usda"), "--worst", "3"])
+    assert (
+        r.invoke(
+            main, ["bake", str(src), "-o", str(tmp_path / "hi.ply"), "--rays", "256", "-q"]
+        ).exit_code
+        == 0
+    )
+    assert (
+        r.invoke(
+            main, ["bake", str(src), "-o", str(tmp_path / "lo.usda"), "--rays", "8", "-q"]
+        ).exit_code
+        == 0
+    )
+    result = r.invoke(
+        main, ["compare", str(tmp_path / "hi.ply"), str(tmp_path / "lo.usda"), "--worst", "3"]
+    )
     assert result.exit_code == 0, result.output
     assert "worst vertices" in result.stdout and result.stdout.count("(") >= 3
 
@@ -99,6 +121,13 @@ def test_plot_without_matplotlib_is_a_clear_error(tmp_path, monkeypatch):
 def test_plot_needs_png_suffix(tmp_path):
     np.save(tmp_path / "a.npy", np.zeros(4))
     result = CliRunner().invoke(
-        main, ["compare", str(tmp_path / "a.npy"), str(tmp_path / "a.npy"), "--plot", str(tmp_path / "p.jpg")]
+        main,
+        [
+            "compare",
+            str(tmp_path / "a.npy"),
+            str(tmp_path / "a.npy"),
+            "--plot",
+            str(tmp_path / "p.jpg"),
+        ],
     )
     assert result.exit_code == 1 and "use a .png suffix" in result.stderr

@@ -10,10 +10,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-import hard_cases
 from aobake.bunnell import bunnell_ao
 from aobake.mesh import surface_from_arrays
 from aobake.raytrace import embree_ao
+
+import hard_cases
 
 
 def _embree(s, **kw):
@@ -31,7 +32,9 @@ def surfaces():
 def _run(method, surface):
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # a RuntimeWarning on the way to a NaN fails the test
-        with np.errstate(divide="raise", over="raise", invalid="raise", under="ignore"):  # underflow is harmless
+        with np.errstate(
+            divide="raise", over="raise", invalid="raise", under="ignore"
+        ):  # underflow is harmless
             return METHODS[method](surface)
 
 
@@ -52,7 +55,9 @@ def test_embree_converges_to_its_high_ray_self(surfaces, case):
     lo = embree_ao(s, n_rays=64, seed=1).ao
     hi = embree_ao(s, n_rays=1024, seed=2).ao
     a = np.clip(1 - hi, 0, 1)
-    bound = 5 * np.sqrt(np.maximum(a * (1 - a), 1 / 64) / 64) + 2 * np.sqrt(np.maximum(a * (1 - a), 1 / 1024) / 1024)
+    bound = 5 * np.sqrt(np.maximum(a * (1 - a), 1 / 64) / 64) + 2 * np.sqrt(
+        np.maximum(a * (1 - a), 1 / 1024) / 1024
+    )
     assert (np.abs(lo - hi) <= bound).all()
     assert np.sqrt(np.mean((lo - hi) ** 2)) < 0.04
 
@@ -100,7 +105,9 @@ def test_bowl_bottom_sees_the_rim_at_45_degrees_and_fins_occlude_each_other(surf
 @given(
     st.integers(4, 30).flatmap(
         lambda n: st.tuples(
-            st.lists(st.tuples(*[st.floats(-1e3, 1e3, allow_nan=False)] * 3), min_size=n, max_size=n),
+            st.lists(
+                st.tuples(*[st.floats(-1e3, 1e3, allow_nan=False)] * 3), min_size=n, max_size=n
+            ),
             st.lists(st.tuples(*[st.integers(0, n - 1)] * 3), min_size=1, max_size=40),
         )
     ),

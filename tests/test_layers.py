@@ -24,7 +24,9 @@ LAYERS = {
 
 def _loaded_after(statement: str) -> set[str]:
     code = f"import sys; {statement}; print(' '.join(sorted(sys.modules)))"
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True
+    ).stdout
     return set(out.split())
 
 
@@ -44,7 +46,9 @@ def test_package_import_is_light():
     assert not {"numba", "trimesh", "embreex", "pxr"} & loaded
 
 
-@pytest.mark.parametrize("module", sorted(p.stem for p in (PACKAGE / "kernels").glob("*.py") if p.stem != "__init__"))
+@pytest.mark.parametrize(
+    "module", sorted(p.stem for p in (PACKAGE / "kernels").glob("*.py") if p.stem != "__init__")
+)
 def test_kernels_import_nothing_heavy(module):
     loaded = _loaded_after(f"import aobake.kernels.{module}")
     assert not {"trimesh", "embreex", "pxr", "click"} & loaded
@@ -78,13 +82,17 @@ def test_no_module_imports_a_higher_layer(path):
     for name in _imports(path):
         if name == "__version__":
             continue
-        assert _layer(name) <= own, f"{path.name} (layer {own}) imports {name} (layer {_layer(name)})"
+        assert _layer(name) <= own, (
+            f"{path.name} (layer {own}) imports {name} (layer {_layer(name)})"
+        )
 
 
 @pytest.mark.parametrize("path", sorted((PACKAGE / "kernels").glob("*.py")), ids=lambda p: p.stem)
 def test_kernels_import_only_kernels_and_constants(path):
     for name in _imports(path):
-        assert name in {"constants"} or (PACKAGE / "kernels" / f"{name}.py").exists(), f"{path.name} imports {name}"
+        assert name in {"constants"} or (PACKAGE / "kernels" / f"{name}.py").exists(), (
+            f"{path.name} imports {name}"
+        )
 
 
 def _external(path: Path) -> set[str]:

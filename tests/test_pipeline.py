@@ -9,10 +9,11 @@ import pytest
 import trimesh
 
 import aobake
-import shapes
 from aobake.errors import FormatError, InputError
 from aobake.formats import read_bake
 from aobake.progress import NullProgress, StderrProgress, make_progress
+
+import shapes
 
 
 def test_bake_accepts_trimesh_surface_and_path(tmp_path):
@@ -34,7 +35,9 @@ def test_bake_file_roundtrip_and_report(tmp_path):
     trimesh.Trimesh(s.positions, s.faces, process=False).export(src)
     out = tmp_path / "s_ao.usdc"
     report = aobake.bake_file(src, out, n_rays=16, seed=2)
-    np.testing.assert_array_equal(read_bake(out).astype(np.float32), aobake.bake(src, n_rays=16, seed=2).astype(np.float32))
+    np.testing.assert_array_equal(
+        read_bake(out).astype(np.float32), aobake.bake(src, n_rays=16, seed=2).astype(np.float32)
+    )
     assert report.n_vertices == s.n_vertices and report.n_rays == 16 * s.n_vertices
     line = report.summary()
     assert line.startswith("s.ply: ") and "M rays/s" in line and "\n" not in line

@@ -64,7 +64,14 @@ def test_depth_test_keeps_the_nearer_surface():
 
 def test_values_interpolate_between_vertices():
     p = np.array([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]], dtype=float)
-    img = render_values(p, np.array([[0, 1, 2], [0, 2, 3]]), np.array([0.0, 1.0, 1.0, 0.0]), size=64, up="Z", view="top")
+    img = render_values(
+        p,
+        np.array([[0, 1, 2], [0, 2, 3]]),
+        np.array([0.0, 1.0, 1.0, 0.0]),
+        size=64,
+        up="Z",
+        view="top",
+    )
     vals = img[~np.isnan(img)]
     assert vals.min() < 0.1 and vals.max() > 0.9
     assert 0.3 < vals.mean() < 0.7
@@ -72,20 +79,26 @@ def test_values_interpolate_between_vertices():
 
 @pytest.fixture
 def baked(tmp_path):
-    import shapes
     import trimesh
+
+    import shapes
 
     s, _ = shapes.sphere_on_ground(0.5, 2, cells=4)
     src = tmp_path / "s.ply"
     trimesh.Trimesh(s.positions, s.faces, process=False).export(src)
     out = tmp_path / "s_ao.ply"
-    assert CliRunner().invoke(main, ["bake", str(src), "-o", str(out), "--rays", "32", "-q"]).exit_code == 0
+    assert (
+        CliRunner().invoke(main, ["bake", str(src), "-o", str(out), "--rays", "32", "-q"]).exit_code
+        == 0
+    )
     return out
 
 
 def test_cli_preview(baked, tmp_path):
     png = tmp_path / "p.png"
-    r = CliRunner().invoke(main, ["preview", str(baked), "-o", str(png), "--size", "96", "--up", "Z"])
+    r = CliRunner().invoke(
+        main, ["preview", str(baked), "-o", str(png), "--size", "96", "--up", "Z"]
+    )
     assert r.exit_code == 0, r.output
     img = _decode_png(png.read_bytes())
     assert img.shape == (96, 96, 3)
@@ -94,12 +107,20 @@ def test_cli_preview(baked, tmp_path):
 
 def test_cli_preview_rejects_other_suffixes(baked, tmp_path):
     r = CliRunner().invoke(main, ["preview", str(baked), "-o", str(tmp_path / "p.jpg")])
-    assert r.exit_code == 1 and r.stderr == "Error: p.jpg: previews are written as PNG; use a .png suffix\n"
+    assert (
+        r.exit_code == 1
+        and r.stderr == "Error: p.jpg: previews are written as PNG; use a .png suffix\n"
+    )
 
 
 def test_cli_compare_render(baked, tmp_path):
     other = tmp_path / "o.usda"
-    assert CliRunner().invoke(main, ["bake", str(baked), "-o", str(other), "--rays", "4", "-q"]).exit_code == 0
+    assert (
+        CliRunner()
+        .invoke(main, ["bake", str(baked), "-o", str(other), "--rays", "4", "-q"])
+        .exit_code
+        == 0
+    )
     png = tmp_path / "c.png"
     r = CliRunner().invoke(main, ["compare", str(baked), str(other), "--render", str(png)])
     assert r.exit_code == 0, r.output

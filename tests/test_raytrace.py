@@ -9,10 +9,18 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-import shapes
 from aobake.mesh import surface_from_arrays
-from aobake.raytrace import Scene, contact_origins, embree_ao, half_width, ray_offsets, stratified_half_width
+from aobake.raytrace import (
+    Scene,
+    contact_origins,
+    embree_ao,
+    half_width,
+    ray_offsets,
+    stratified_half_width,
+)
 from aobake.sampling import sample_directions
+
+import shapes
 from reference import reference_ao
 
 
@@ -60,7 +68,11 @@ def test_inside_closed_sphere_is_fully_occluded():
     np.testing.assert_array_equal(embree_ao(s, n_rays=64).ao, 0.0)
 
 
-@pytest.mark.parametrize("surface", [shapes.sphere(1.0, 3), shapes.box(), shapes.random_convex(0)], ids=["sphere", "box", "hull"])
+@pytest.mark.parametrize(
+    "surface",
+    [shapes.sphere(1.0, 3), shapes.box(), shapes.random_convex(0)],
+    ids=["sphere", "box", "hull"],
+)
 @pytest.mark.parametrize("measure", ["cosine", "uniform"])
 def test_convex_body_does_not_occlude_itself(surface, measure):
     # Exactly 1: any self-hit from a too-small offset or a leak would show.
@@ -111,7 +123,9 @@ def test_stratified_beats_random_and_converges():
     ref = embree_ao(s, n_rays=8192, seed=99).ao
 
     def rmse(n, stratified):
-        return np.sqrt(np.mean((embree_ao(s, n_rays=n, seed=1, stratified=stratified).ao - ref) ** 2))
+        return np.sqrt(
+            np.mean((embree_ao(s, n_rays=n, seed=1, stratified=stratified).ao - ref) ** 2)
+        )
 
     strat16, strat256 = rmse(16, True), rmse(256, True)
     rand16, rand256 = rmse(16, False), rmse(256, False)
@@ -125,7 +139,9 @@ def test_stratified_beats_random_and_converges():
 def test_far_from_origin_matches_origin():
     s, _ = shapes.sphere_on_ground(0.5, 3, gap=0.0, cells=12)
     size = np.ptp(s.positions, axis=0).max()
-    moved = surface_from_arrays(s.positions + 1e4 * size * np.array([1.0, -0.7, 0.3]), s.faces, s.normals)
+    moved = surface_from_arrays(
+        s.positions + 1e4 * size * np.array([1.0, -0.7, 0.3]), s.faces, s.normals
+    )
     a = embree_ao(s, n_rays=64).ao
     b = embree_ao(moved, n_rays=64).ao
     # recentring in float64 makes the float32 scene identical up to the last bit of
@@ -168,7 +184,11 @@ def test_cube_on_floor_coplanar_contact():
     cube.apply_translation([0, 0, 0.5])
     gp, gf = shapes.ground_grid(3.0, 5)  # no floor vertex at the cube corners
     s = surface_from_arrays(np.vstack([cube.vertices, gp]), np.vstack([cube.faces, gf + 8]))
-    corner = int(np.flatnonzero((cube.vertices[:, 2] == 0) & (cube.vertices[:, 0] > 0) & (cube.vertices[:, 1] > 0))[0])
+    corner = int(
+        np.flatnonzero(
+            (cube.vertices[:, 2] == 0) & (cube.vertices[:, 0] > 0) & (cube.vertices[:, 1] > 0)
+        )[0]
+    )
     n = s.normals[corner]
     # quadrature of (1/pi) int_{w.n > 0, w_z < 0} (w.n) dw
     t = (np.arange(400) + 0.5) / 400 * np.pi
@@ -252,7 +272,16 @@ def test_degenerate_and_duplicate_geometry_is_finite():
     assert np.isfinite(ao).all() and ao.min() >= 0 and ao.max() <= 1
 
 
-@pytest.mark.parametrize("bad", [dict(n_rays=0), dict(measure="x"), dict(max_distance=0.0), dict(bias=-1.0), dict(tolerance=0.0)])
+@pytest.mark.parametrize(
+    "bad",
+    [
+        dict(n_rays=0),
+        dict(measure="x"),
+        dict(max_distance=0.0),
+        dict(bias=-1.0),
+        dict(tolerance=0.0),
+    ],
+)
 def test_bad_options_rejected(bad):
     with pytest.raises(ValueError):
         embree_ao(shapes.box(), **bad)

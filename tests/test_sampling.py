@@ -21,7 +21,9 @@ def test_concentric_map_spot_values():
     np.testing.assert_allclose((x, y), (0.0, 1.0), atol=1e-15)
 
 
-@pytest.mark.parametrize("warp", [warps.square_to_cosine_hemisphere, warps.square_to_uniform_hemisphere])
+@pytest.mark.parametrize(
+    "warp", [warps.square_to_cosine_hemisphere, warps.square_to_uniform_hemisphere]
+)
 def test_hemisphere_warps_unit_and_upper(warp):
     u = unit_square_samples(3, 7, 1024)
     d = np.array([warp(a, b) for a, b in u])
@@ -31,7 +33,9 @@ def test_hemisphere_warps_unit_and_upper(warp):
 
 def _binned_uniformity(values: np.ndarray, bins: int) -> None:
     """Counts of uniform values in equal bins sit within 5 binomial sigmas."""
-    counts = np.histogram2d(values[:, 0], values[:, 1], bins=bins, range=[[0, 1], [0, 1]])[0].ravel()
+    counts = np.histogram2d(values[:, 0], values[:, 1], bins=bins, range=[[0, 1], [0, 1]])[
+        0
+    ].ravel()
     n = values.shape[0]
     p = 1.0 / bins**2
     sigma = math.sqrt(n * p * (1 - p))
@@ -57,13 +61,17 @@ def test_uniform_hemisphere_distribution():
 def test_pdfs_integrate_to_one():
     # Riemann sum over the hemisphere in (cos theta, phi): d omega = d(cos) d(phi).
     z = (np.arange(2000) + 0.5) / 2000
-    np.testing.assert_allclose(sum(warps.cosine_hemisphere_pdf(c) for c in z) / 2000 * 2 * np.pi, 1.0, rtol=1e-6)
+    np.testing.assert_allclose(
+        sum(warps.cosine_hemisphere_pdf(c) for c in z) / 2000 * 2 * np.pi, 1.0, rtol=1e-6
+    )
     assert warps.uniform_hemisphere_pdf(0.3) * 2 * np.pi == pytest.approx(1.0)
     assert warps.uniform_sphere_pdf() * 4 * np.pi == pytest.approx(1.0)
 
 
 unit_vectors = st.tuples(
-    st.floats(-1, 1, allow_nan=False), st.floats(-1, 1, allow_nan=False), st.floats(-1, 1, allow_nan=False)
+    st.floats(-1, 1, allow_nan=False),
+    st.floats(-1, 1, allow_nan=False),
+    st.floats(-1, 1, allow_nan=False),
 ).filter(lambda v: 1e-3 < math.sqrt(sum(c * c for c in v)))
 
 
@@ -92,7 +100,9 @@ def test_sobol_prefixes_are_stratified():
         pts = u[: 2**m]
         for a in range(m + 1):
             b = m - a
-            cells = np.floor(pts[:, 0] * 2**a).astype(int) * 2**b + np.floor(pts[:, 1] * 2**b).astype(int)
+            cells = np.floor(pts[:, 0] * 2**a).astype(int) * 2**b + np.floor(
+                pts[:, 1] * 2**b
+            ).astype(int)
             assert np.bincount(cells, minlength=2**m).max() == 1
 
 

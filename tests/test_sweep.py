@@ -9,9 +9,10 @@ import numpy as np
 import trimesh
 from click.testing import CliRunner
 
-import shapes
 from aobake.cli import main
 from aobake.sweep import SweepRow, mark_pareto, run_sweep
+
+import shapes
 
 
 def _row(label, seconds, rmse):
@@ -19,13 +20,25 @@ def _row(label, seconds, rmse):
 
 
 def test_pareto_front():
-    rows = mark_pareto([_row("a", 1, 0.1), _row("b", 2, 0.05), _row("c", 3, 0.06), _row("d", 0.5, 0.2), _row("e", 2, 0.05)])
+    rows = mark_pareto(
+        [
+            _row("a", 1, 0.1),
+            _row("b", 2, 0.05),
+            _row("c", 3, 0.06),
+            _row("d", 0.5, 0.2),
+            _row("e", 2, 0.05),
+        ]
+    )
     assert [r.pareto for r in rows] == [True, True, False, True, True]
 
 
 def test_run_sweep_scores_against_reference():
     ref = np.linspace(0, 1, 11)
-    rows = run_sweep(lambda m, o: (ref + o["shift"], 7), ref, [("m", "s0", {"shift": 0.0}), ("m", "s1", {"shift": 0.1})])
+    rows = run_sweep(
+        lambda m, o: (ref + o["shift"], 7),
+        ref,
+        [("m", "s0", {"shift": 0.0}), ("m", "s1", {"shift": 0.1})],
+    )
     assert rows[0].rmse == 0.0 and abs(rows[1].rmse - 0.1) < 1e-12
     assert abs(rows[1].bias - 0.1) < 1e-12 and abs(rows[1].max_abs - 0.1) < 1e-12
     assert rows[0].rays == 7
@@ -36,7 +49,9 @@ def test_cli_sweep_writes_table_csv_json_png_and_caches(tmp_path, monkeypatch):
     src = tmp_path / "s.ply"
     trimesh.Trimesh(s.positions, s.faces, process=False).export(src)
     out = tmp_path / "sweep"
-    r = CliRunner().invoke(main, ["sweep", str(src), "-o", str(out), "--reference-rays", "256", "--repeats", "1", "-q"])
+    r = CliRunner().invoke(
+        main, ["sweep", str(src), "-o", str(out), "--reference-rays", "256", "--repeats", "1", "-q"]
+    )
     assert r.exit_code == 0, r.output
     assert r.stdout.startswith("| method | settings |")
     rows = list(csv.DictReader((out / "sweep.csv").open()))
@@ -52,7 +67,25 @@ def test_cli_sweep_writes_table_csv_json_png_and_caches(tmp_path, monkeypatch):
 
     calls = []
     real = rt.embree_ao
-    monkeypatch.setattr(rt, "embree_ao", lambda *a, **k: calls.append((k.get("n_rays"), k.get("seed"))) or real(*a, **k))
-    r2 = CliRunner().invoke(main, ["sweep", str(src), "-o", str(out), "--reference-rays", "256", "--repeats", "1", "-q", "--no-plot"])
+    monkeypatch.setattr(
+        rt,
+        "embree_ao",
+        lambda *a, **k: calls.append((k.get("n_rays"), k.get("seed"))) or real(*a, **k),
+    )
+    r2 = CliRunner().invoke(
+        main,
+        [
+            "sweep",
+            str(src),
+            "-o",
+            str(out),
+            "--reference-rays",
+            "256",
+            "--repeats",
+            "1",
+            "-q",
+            "--no-plot",
+        ],
+    )
     assert r2.exit_code == 0
     assert calls and (256, 1) not in calls  # the reference uses seed + 1

@@ -48,7 +48,9 @@ def generate_rays(origins, normals, keys, vertex_index, j0, j1, mode, out_org, o
         has_normal = nx != 0.0 or ny != 0.0 or nz != 0.0
         key = keys[v]
         s0, s1 = rng.scramble_seeds(key)
-        tx, ty, tz, bx, by, bz = warps.frame(nx, ny, nz) if has_normal else (1.0, 0.0, 0.0, 0.0, 1.0, 0.0)
+        tx, ty, tz, bx, by, bz = (
+            warps.frame(nx, ny, nz) if has_normal else (1.0, 0.0, 0.0, 0.0, 1.0, 0.0)
+        )
         for s in range(per):
             j = j0 + s
             if stratified:

@@ -38,11 +38,21 @@ def hash2(a, b):
 def reverse_bits32(x):
     """Reverse the low 32 bits of ``x`` (a uint64 holding a 32-bit word)."""
     x = np.uint64(x) & _M32
-    x = ((x >> np.uint64(1)) & np.uint64(0x55555555)) | ((x & np.uint64(0x55555555)) << np.uint64(1))
-    x = ((x >> np.uint64(2)) & np.uint64(0x33333333)) | ((x & np.uint64(0x33333333)) << np.uint64(2))
-    x = ((x >> np.uint64(4)) & np.uint64(0x0F0F0F0F)) | ((x & np.uint64(0x0F0F0F0F)) << np.uint64(4))
-    x = ((x >> np.uint64(8)) & np.uint64(0x00FF00FF)) | ((x & np.uint64(0x00FF00FF)) << np.uint64(8))
-    x = ((x >> np.uint64(16)) & np.uint64(0x0000FFFF)) | ((x & np.uint64(0x0000FFFF)) << np.uint64(16))
+    x = ((x >> np.uint64(1)) & np.uint64(0x55555555)) | (
+        (x & np.uint64(0x55555555)) << np.uint64(1)
+    )
+    x = ((x >> np.uint64(2)) & np.uint64(0x33333333)) | (
+        (x & np.uint64(0x33333333)) << np.uint64(2)
+    )
+    x = ((x >> np.uint64(4)) & np.uint64(0x0F0F0F0F)) | (
+        (x & np.uint64(0x0F0F0F0F)) << np.uint64(4)
+    )
+    x = ((x >> np.uint64(8)) & np.uint64(0x00FF00FF)) | (
+        (x & np.uint64(0x00FF00FF)) << np.uint64(8)
+    )
+    x = ((x >> np.uint64(16)) & np.uint64(0x0000FFFF)) | (
+        (x & np.uint64(0x0000FFFF)) << np.uint64(16)
+    )
     return x & _M32
 
 

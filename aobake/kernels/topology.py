@@ -62,7 +62,11 @@ def shells(faces, order, run_start, normals):
             i = order[a]
             for b in range(a + 1, hi):
                 j = order[b]
-                d = normals[i, 0] * normals[j, 0] + normals[i, 1] * normals[j, 1] + normals[i, 2] * normals[j, 2]
+                d = (
+                    normals[i, 0] * normals[j, 0]
+                    + normals[i, 1] * normals[j, 1]
+                    + normals[i, 2] * normals[j, 2]
+                )
                 if d >= -1e-6:
                     _union(parent, i, j)
     return _relabel(parent)
