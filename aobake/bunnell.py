@@ -1,7 +1,8 @@
 """Fast AO without rays: Bunnell's oriented disks, a cluster tree, and occlusion passes.
 
 Numpy-facing: validates options, coerces dtypes once, and calls the compiled loops in
-``aobake.kernels.bunnell`` (``_k.*``). Contains no @njit code and never prints.
+``aobake.kernels.bunnell`` (``_k.*``; the tree itself is :mod:`aobake.hierarchy`).
+Contains no @njit code and never prints.
 
 References
 ----------
@@ -18,51 +19,86 @@ from dataclasses import dataclass
 import numpy as np
 
 from ._types import AOArray, FloatArray, IndexArray
+from .constants import NEAR_OFFSET_REL
 from .errors import NumericalError
+from .hierarchy import ClusterTree, pack_nodes, refit_tree, tree_keys
+from .hierarchy import build_tree as _build_tree
 from .kernels import bunnell as _k
-from .mesh import Surface, vertex_areas
+from .kernels import hierarchy as _h
+from .kernels import polygon as _poly
+from .mesh import Surface
 from .progress import NullProgress, Progress
+
+__all__ = [
+    "ClusterTree",
+    "DiskElements",
+    "bunnell_ao",
+    "build_elements",
+    "build_tree",
+    "combine_passes",
+    "numba_threads",
+    "occlusion_passes",
+    "refit_tree",
+    "tree_keys",
+]
 
 MEASURES = {"cosine": _k.MEASURE_COSINE, "uniform": _k.MEASURE_UNIFORM}
 COMBINES = ("last", "bunnell", "hoberock")
+SIDES = ("max", "front")
 
 # Opening parameter: a cluster of area A and bounding radius b is used as one emitter when
-# d^2 >= theta * max(A, pi b^2). Measured in bench/bench_bunnell.py (pass-1 occlusion
-# against the exact sum): theta = 4 costs ~0.6x the time of theta = 8 for an RMSE of
-# 0.004-0.014 on the bench scenes, well below the method's own error against ray tracing
-# (0.04-0.13), which the hierarchy error barely changes.
+# every receiver of a bucket is farther than sqrt(theta * max(A, pi b^2)) from its centre.
+# Measured in bench/bench_bunnell.py against the exact sum: see the README table.
 DEFAULT_THETA = 4.0
-# Emitters per leaf: near-field leaves are summed exactly; 8-16 was fastest on the bench
-# scenes (fewer, denser nodes), and larger leaves only lower the error.
+# Near field: disks closer than sqrt(NEAR * A) to the receiver are replaced by the exact
+# form factor of their barycentric cells. Measured in bench/bench_bunnell.py.
+DEFAULT_NEAR = 4.0
+# Passes k >= 2 weight each disk by 1 - DAMPING * A_{k-1} (cells keep weight 1). Bunnell's
+# weight 1 - A (DAMPING = 1) collapses where pass 1 saturates; measured in
+# bench/bench_bunnell.py (section "passes"), 0.3 was the best of 0.3, 0.5, 0.7, 1.
+DEFAULT_DAMPING = 0.3
+# Emitters per leaf (and receivers per bucket): 16 was fastest on the bench scenes.
 DEFAULT_LEAF_SIZE = 16
-# Receivers per kernel call: only for progress reports (a call is ~0.1 s on 2 cores).
-CHUNK_RECEIVERS = 1 << 16
+# Buckets per kernel call: only for progress reports and Ctrl-C latency.
+CHUNK_BUCKETS = 1 << 12
 
 
 @dataclass(frozen=True)
 class DiskElements:
     """One oriented disk per vertex: every vertex receives, disks with area and normal cast.
 
+    Coordinates are normalised: ``(input - origin) / scale`` in float64, so the kernels'
+    float32 arithmetic sees numbers of order 1 whatever the mesh's size and position.
+
     Attributes
     ----------
     positions : (n, 3) float64
-        Vertex positions minus ``origin`` (recentred in float64, so a mesh far from the
-        origin gives the same result as the same mesh at it).
+        Normalised vertex positions (disk centres).
     normals : (n, 3) float64
         Unit normals, zero rows where a vertex has none.
     areas : (n,) float64
-        Disk areas: 1/3 of the adjacent triangle areas (zero for isolated vertices).
+        Disk areas (normalised): 1/3 of the adjacent triangle areas (0 when isolated).
     emitter_index : (k,) int64
         Vertices whose disk casts: ``areas > 0`` and a nonzero normal.
+    points : (n, 3) float64
+        Where each vertex receives: ``positions + NEAR_OFFSET_REL sqrt(A) n``.
+    corner_start, corners : int64
+        Triangles around each vertex (``aobake.kernels.polygon.cell_corners``).
     origin : (3,) float64
-        Centre of the bounding box, subtracted from the input positions.
+        Centre of the input's bounding box.
+    scale : float
+        Largest extent of the input's bounding box (1 when it is a point).
     """
 
     positions: FloatArray
     normals: FloatArray
     areas: FloatArray
     emitter_index: IndexArray
+    points: FloatArray
+    corner_start: IndexArray
+    corners: IndexArray
     origin: FloatArray
+    scale: float
 
     @property
     def n_vertices(self) -> int:
@@ -73,44 +109,12 @@ class DiskElements:
         return int(self.emitter_index.shape[0])
 
 
-@dataclass(frozen=True)
-class ClusterTree:
-    """A flat binary cluster tree over the casting disks (preorder, skip pointers).
-
-    Attributes
-    ----------
-    order : (k,) int64
-        Vertex index of each emitter in tree order; node ranges index this array.
-    start, stop : (m,) int64
-        Node ``q`` holds emitters ``order[start[q]:stop[q]]``.
-    skip : (m,) int64
-        Node after ``q``'s subtree; the first child of an internal node is ``q + 1`` and
-        ``skip[q] == q + 1`` marks a leaf.
-    centers : (m, 3) float64
-        Area-weighted mean disk position (recentred coordinates).
-    radii : (m,) float64
-        Bounding radius about the centre, disk radii included.
-    areas : (m,) float64
-        Summed disk area.
-    leaf_size : int
-        Maximum emitters per leaf.
-    """
-
-    order: IndexArray
-    start: IndexArray
-    stop: IndexArray
-    skip: IndexArray
-    centers: FloatArray
-    radii: FloatArray
-    areas: FloatArray
-    leaf_size: int
-
-    @property
-    def n_nodes(self) -> int:
-        return int(self.skip.shape[0])
-
-
 def build_elements(surface: Surface) -> DiskElements:
+    with np.errstate(under="ignore"):  # denormal inputs: flushing to zero is harmless
+        return _build_elements(surface)
+
+
+def _build_elements(surface: Surface) -> DiskElements:
     """Disk elements of a surface (all parts: one element set for the whole scene).
 
     Parameters
@@ -120,25 +124,45 @@ def build_elements(surface: Surface) -> DiskElements:
     Returns
     -------
     DiskElements
-        Positions recentred on the bounding-box centre; area ``A_i = sum_f area_f / 3``
-        over the triangles f around vertex i (``0.5 |e1 x e2|``, never Heron).
+        Area ``A_i = sum_f area_f / 3`` over the triangles f around vertex i
+        (``0.5 |e1 x e2|``, never Heron).
     """
     positions = np.ascontiguousarray(surface.positions, dtype=np.float64)
-    faces = np.ascontiguousarray(surface.faces, dtype=np.int64)
+    faces = np.ascontiguousarray(surface.faces, dtype=np.int64).reshape(-1, 3)
     normals = np.ascontiguousarray(surface.normals, dtype=np.float64)
     if positions.ndim != 2 or positions.shape[1] != 3 or normals.shape != positions.shape:
         raise ValueError(
             f"positions and normals must both be (n, 3), got {positions.shape} and {normals.shape}"
         )
-    origin = 0.5 * (positions.min(axis=0) + positions.max(axis=0))
-    local = np.ascontiguousarray(positions - origin)
-    areas = vertex_areas(local, faces) if faces.size else np.zeros(positions.shape[0])
+    n = positions.shape[0]
+    if n:
+        lo, hi = positions.min(axis=0), positions.max(axis=0)
+        origin = 0.5 * (lo + hi)
+        extent = float((hi - lo).max())
+    else:
+        origin, extent = np.zeros(3), 0.0
+    scale = extent if extent > 0.0 and math.isfinite(extent) else 1.0
+    local = np.ascontiguousarray((positions - origin) / scale)
+    areas = np.zeros(n)
+    _poly.vertex_areas(local, faces, areas)
     casts = (areas > 0.0) & normals.any(axis=1)
-    return DiskElements(local, normals, areas, np.flatnonzero(casts).astype(np.int64), origin)
+    points = np.ascontiguousarray(local + (NEAR_OFFSET_REL * np.sqrt(areas))[:, None] * normals)
+    corner_start, corners = _poly.cell_corners(faces, n)
+    return DiskElements(
+        local,
+        normals,
+        areas,
+        np.flatnonzero(casts).astype(np.int64),
+        points,
+        corner_start,
+        corners,
+        origin,
+        scale,
+    )
 
 
 def build_tree(elements: DiskElements, *, leaf_size: int = DEFAULT_LEAF_SIZE) -> ClusterTree:
-    """Cluster tree over the casting disks: median split on the longest axis.
+    """Cluster tree over the casting disks (:func:`aobake.hierarchy.build_tree`).
 
     Parameters
     ----------
@@ -146,32 +170,117 @@ def build_tree(elements: DiskElements, *, leaf_size: int = DEFAULT_LEAF_SIZE) ->
         With at least one casting disk.
     leaf_size : int, optional
         Maximum disks per leaf (>= 1).
-
-    Returns
-    -------
-    ClusterTree
-
-    Notes
-    -----
-    Built iteratively in ``_k.build_tree`` (explicit stack, quickselect: O(k log k)) on
-    quantised integer keys (:func:`tree_keys`), ties broken by index, so the same mesh
-    scaled or translated gets the same tree; a range whose keys all coincide is split by
-    index. A node's area is the sum of its disks' areas, its centre their area-weighted
-    mean position, its radius bounds every disk. Normal sums and second moments are refit
-    per pass (weighted by accessibility) in ``_k.refit_nodes``.
     """
     leaf_size = _check_int("leaf_size", leaf_size, 1)
     if elements.n_emitters == 0:
         raise ValueError("build_tree needs at least one casting disk (area > 0 and a normal)")
-    emit = elements.emitter_index
-    perm, start, stop, skip = _k.build_tree(tree_keys(elements.positions[emit]), leaf_size)
-    order = np.ascontiguousarray(emit[perm])
-    geometry = np.zeros((skip.shape[0], 5))
-    _k.node_geometry(pack_emitters(elements, order), start, stop, geometry)
-    centers = np.ascontiguousarray(geometry[:, :3])
-    radii = np.ascontiguousarray(geometry[:, 3])
-    areas = np.ascontiguousarray(geometry[:, 4])
-    return ClusterTree(order, start, stop, skip, centers, radii, areas, leaf_size)
+    return _build_tree(
+        elements.positions, elements.areas, elements.emitter_index, leaf_size=leaf_size
+    )
+
+
+class _Pass:
+    """Kernel inputs of one (elements, tree, options) set, reused by every pass."""
+
+    def __init__(
+        self, elements: DiskElements, tree: ClusterTree | None, theta, near, code, reach, inner=None
+    ):
+        self.elements = elements
+        self.tree = tree
+        self.options = (code, reach, near)
+        inner = np.zeros(elements.n_vertices) if inner is None else inner
+        self.receivers = (elements.points, elements.normals, np.ascontiguousarray(inner, dtype=np.float64))
+        if tree is None:
+            return
+        import numba
+
+        order = tree.order
+        self.rows = np.zeros((order.shape[0], _h.EMITTER_COLS), dtype=np.float32)
+        self.rows[:, _h.E_X : _h.E_Z + 1] = elements.positions[order]
+        self.rows[:, _h.E_MX : _h.E_MZ + 1] = elements.normals[order]
+        self.rows[:, _h.E_AREA] = elements.areas[order]
+        self.nodes = pack_nodes(tree, theta=theta, near=near)
+        self.tree_args = (tree.skip, tree.start, tree.stop, self.nodes)
+        self.emitters = (self.rows, order)
+        recv_order, bucket_start = receiver_buckets(elements, tree)
+        bounds = np.zeros((bucket_start.shape[0] - 1, 5))
+        _k.bucket_bounds(elements.points, self.receivers[2], recv_order, bucket_start, bounds)
+        slots = numba.config.NUMBA_NUM_THREADS
+        k, m = order.shape[0], tree.n_nodes
+        self.bucket_start = bucket_start
+        self.buckets = (
+            recv_order,
+            bucket_start,
+            bounds,
+            np.empty((slots, _k.NEAR_ROWS, k), dtype=np.float32),
+            np.empty((slots, 2, k), dtype=np.int64),
+            np.empty((slots, _k.FAR_ROWS, m), dtype=np.float32),
+        )
+
+    def sums(self, weights: FloatArray, progress: Progress, cell_weights=None) -> FloatArray:
+        """(n, 2) unsaturated (front, back) sums with per-vertex emitter weights (disks)
+        and cell weights (near field; default: the same)."""
+        e = self.elements
+        cell_weights = weights if cell_weights is None else cell_weights
+        out = np.zeros((e.n_vertices, 2))
+        if self.tree is None:
+            disks = (e.positions, e.normals, e.areas, weights)
+            cells = (e.corner_start, e.corners, cell_weights)
+            everyone = np.arange(e.n_vertices, dtype=np.int64)
+            step = CHUNK_BUCKETS * DEFAULT_LEAF_SIZE
+            for lo in range(0, e.n_vertices, step):
+                chunk = everyone[lo : lo + step]
+                _k.brute_force_pass(
+                    disks, cells, e.emitter_index, self.receivers, chunk, self.options, out
+                )
+                progress.advance(chunk.shape[0])
+            return out
+        self.rows[:, _h.E_WEIGHT] = weights[self.tree.order]
+        _h.refit_nodes(self.rows, self.tree.skip, self.tree.start, self.tree.stop, self.nodes)
+        near_field = (e.positions, cell_weights, e.corner_start, e.corners)
+        n_buckets = self.bucket_start.shape[0] - 1
+        for b0 in range(0, n_buckets, CHUNK_BUCKETS):
+            b1 = min(b0 + CHUNK_BUCKETS, n_buckets)
+            _k.hierarchy_pass(
+                self.tree_args,
+                self.emitters,
+                self.receivers,
+                near_field,
+                self.buckets,
+                (b0, b1),
+                self.options,
+                out,
+            )
+            progress.advance(int(self.bucket_start[b1] - self.bucket_start[b0]))
+        return out
+
+
+def receiver_buckets(elements: DiskElements, tree: ClusterTree) -> tuple[IndexArray, IndexArray]:
+    """Receivers grouped into small, compact buckets that walk the tree together.
+
+    The emitters' tree leaves are the first buckets (in tree order, so consecutive
+    buckets are neighbours); the other vertices (no area or no normal) get a tree of
+    their own, whose leaves are the remaining buckets.
+
+    Returns
+    -------
+    order : (n,) int64
+        Every vertex once, bucket by bucket.
+    bucket_start : (nb + 1,) int64
+    """
+    leaves = tree.leaves
+    starts = [tree.start[leaves]]
+    order = [tree.order]
+    casts = np.zeros(elements.n_vertices, dtype=bool)
+    casts[tree.order] = True
+    rest = np.flatnonzero(~casts)
+    if rest.size:
+        perm, start, _, skip = _h.build_tree(tree_keys(elements.points[rest]), tree.leaf_size)
+        rest_leaves = np.flatnonzero(skip == np.arange(1, skip.shape[0] + 1))
+        starts.append(start[rest_leaves] + tree.order.shape[0])
+        order.append(rest[perm])
+    bucket_start = np.append(np.concatenate(starts), elements.n_vertices).astype(np.int64)
+    return np.ascontiguousarray(np.concatenate(order), dtype=np.int64), bucket_start
 
 
 def occlusion_passes(
@@ -180,12 +289,16 @@ def occlusion_passes(
     *,
     passes: int = 1,
     theta: float = DEFAULT_THETA,
+    near: float = DEFAULT_NEAR,
+    sides: str = "max",
+    damping: float = DEFAULT_DAMPING,
     measure: str = "cosine",
     max_distance: float | None = None,
+    inner: FloatArray | None = None,
     threads: int | None = None,
     progress: Progress | None = None,
 ) -> FloatArray:
-    """Saturated occlusion of every pass: ``A_k = clip(sum_j w_j F(j -> i), 0, 1)``.
+    """Saturated occlusion of every pass, ``A_k = clip(combine_sides(sums_k), 0, 1)``.
 
     Parameters
     ----------
@@ -193,13 +306,23 @@ def occlusion_passes(
     tree : ClusterTree or None
         ``None`` sums every disk exactly (brute force, O(n k): the test reference).
     passes : int
-        K >= 1. Pass 1 has ``w_j = 1``; pass k has ``w_j = 1 - A_{k-1}(j)``, so disks
-        that are themselves in shadow cast less (Bunnell's double-shadow removal).
+        K >= 1. Pass 1 has ``w_j = 1``; pass k weights disk j by
+        ``w_j = 1 - damping A_{k-1}(j)``, so disks that are themselves in shadow cast
+        less (Bunnell's double-shadow removal); near-field cells keep weight 1.
     theta : float
         Opening parameter (> 0), ignored without a tree; see :func:`bunnell_ao`.
+    near : float
+        Near-field factor (>= 0; 0 = disks only); see :func:`bunnell_ao`.
+    sides : {"max", "front"}
+        ``"max"``: ``max(front, back)``; ``"front"``: front sums only.
+    damping : float
+        In (0, 1]; 1 with ``near=0`` is Bunnell's published scheme.
     measure : {"cosine", "uniform"}
     max_distance : float or None
-        Disks farther than this from the receiver are ignored; None = unbounded.
+        In mesh units; disks farther than this from the receiver are ignored.
+    inner : (n,) float or None
+        Per receiver, in mesh units: disks and cells whose centre is closer than this are
+        left out (:func:`aobake.hybrid.hybrid_ao` traces rays inside it). None: 0.
     threads : int or None
         numba threads for this call (restored afterwards); None keeps the current setting.
     progress : Progress or None
@@ -211,8 +334,11 @@ def occlusion_passes(
     """
     passes = _check_int("passes", passes, 1)
     code = _check_measure(measure)
-    reach = _check_max_distance(max_distance)
+    reach = _check_max_distance(max_distance) / elements.scale
     theta = _check_theta(theta)
+    near = _check_near(near)
+    _check_sides(sides)
+    damping = _check_damping(damping)
     _check_threads(threads)
     progress = NullProgress() if progress is None else progress
     n = elements.n_vertices
@@ -222,31 +348,37 @@ def occlusion_passes(
         progress.advance(passes * n)
         progress.finish()
         return occlusion
-    order = elements.emitter_index if tree is None else tree.order
-    emitters = pack_emitters(elements, order)
-    receivers = _k.Receivers(elements.positions, elements.normals)
-    # receivers in emitter (tree) order, so neighbouring threads walk similar nodes
-    rest = np.setdiff1d(np.arange(n, dtype=np.int64), order, assume_unique=True)
-    receiver_order = np.ascontiguousarray(np.concatenate([order, rest]))
-    packed_tree = None if tree is None else pack_tree(tree, theta)
-    sums = np.zeros(n)
-    with numba_threads(threads):
+    weights = np.ones(n)
+    cell_weights = np.ones(n)
+    with numba_threads(threads), np.errstate(under="ignore"):
+        if inner is not None:
+            inner = np.asarray(inner, dtype=np.float64) / elements.scale
+            if inner.shape != (n,) or not np.all(inner >= 0.0):
+                raise ValueError(f"inner must be ({n},) and >= 0")
+        job = _Pass(elements, tree, theta, near, code, reach, inner)
         for k in range(passes):
             if k > 0:
-                emitters.data[:, _k.E_WEIGHT] = 1.0 - occlusion[k - 1][order]
-            if packed_tree is not None:
-                _k.refit_nodes(emitters, packed_tree)
-            for lo in range(0, n, CHUNK_RECEIVERS):
-                chunk = receiver_order[lo : lo + CHUNK_RECEIVERS]
-                if packed_tree is None:
-                    _k.brute_force_pass(emitters, receivers, chunk, code, reach, sums)
-                else:
-                    _k.hierarchy_pass(emitters, packed_tree, receivers, chunk, code, reach, sums)
-                progress.advance(chunk.shape[0])
+                weights = 1.0 - damping * occlusion[k - 1]
+            sums = job.sums(weights, progress, cell_weights)
             _check_result(sums, "unsaturated occlusion sum", lower=0.0, upper=np.inf)
-            occlusion[k] = np.clip(sums, 0.0, 1.0)
+            occlusion[k] = np.clip(combine_sides(sums, sides), 0.0, 1.0)
     progress.finish()
     return occlusion
+
+
+def combine_sides(sums: FloatArray, sides: str = "max") -> FloatArray:
+    """Occlusion from the (front, back) sums of one pass.
+
+    ``"front"``: the front sum (front faces cast, the published method). ``"max"``:
+    ``max(front, back)``. Outside every closed object each direction crosses as many back
+    faces as front faces, so back = front for exact sums and nothing changes; a receiver
+    inside a closed object (sunk into it, or on a face it rests on) gets back =
+    front + 1, i.e. fully occluded; behind an open sheet (a floor seen from below) the
+    back faces count as the ray-traced reference counts them.
+    """
+    if sides == "front":
+        return sums[:, 0].copy()
+    return np.maximum(sums[:, 0], sums[:, 1])
 
 
 def combine_passes(occlusion: FloatArray, combine: str = "last") -> AOArray:
@@ -285,6 +417,9 @@ def bunnell_ao(
     *,
     passes: int = 1,
     theta: float = DEFAULT_THETA,
+    near: float = DEFAULT_NEAR,
+    sides: str = "max",
+    damping: float = DEFAULT_DAMPING,
     measure: str = "cosine",
     max_distance: float | None = None,
     combine: str = "last",
@@ -293,43 +428,51 @@ def bunnell_ao(
     threads: int | None = None,
     progress: Progress | None = None,
 ) -> AOArray:
-    """Per-vertex ambient accessibility from summed disk form factors (no rays).
+    """Per-vertex ambient accessibility from summed form factors (no rays).
 
     Each vertex i is a disk (centre p_i, unit normal n_i, area A_i = 1/3 of its triangles'
     area); disk j occludes receiver i by
 
     - cosine measure (default, matches the ray-traced reference):
-      ``F = A_j cos_e cos_r / (pi r^2 + A_j)``;
-    - uniform measure: ``F = (1 - r / sqrt(A_j / pi + r^2)) cos_e clamp(4 cos_r, 0, 1)``,
+      ``F = A_j |cos_e| cos_r / (pi r^2 + A_j)``;
+    - uniform measure: ``F = (1 - r / sqrt(A_j / pi + r^2)) |cos_e| clamp(4 cos_r, 0, 1)``,
 
-    with ``d = p_j - p_i``, ``r = |d|``, ``cos_r = max(n_i.d / r, 0)`` and
-    ``cos_e = max(-n_j.d / r, 0)``: **front faces cast** (the emitter's front side faces
-    the receiver; back faces would ignore single-sided occluders such as a ground plane).
-    Pass 1: ``A_1 = clip(sum_j F, 0, 1)``; pass k weights each F by the emitter's
-    accessibility ``1 - A_{k-1}(j)``. Far clusters of disks count as one disk.
+    with ``d = p_j - p_i``, ``r = |d|``, ``cos_r = max(n_i.d / r, 0)``, ``cos_e = -n_j.d / r``.
+    Disks whose front side faces the receiver (``cos_e > 0``) add to the front sum, the
+    others to the back sum. Near the receiver (``r^2 < near A_j``) a disk is replaced by
+    the exact form factor (cosine) or solid angle (uniform) of the surface it stands for,
+    its barycentric cell, clipped to the receiver's tangent plane (Hoberock & Jia's fix
+    for dark pinching and contacts). Far clusters of disks count as one emitter.
 
     Parameters
     ----------
     surface : Surface
         All parts form one scene and occlude each other.
     passes : int, optional
-        Number of passes K >= 1. Default 1: measured against Embree (1024 rays) on four
-        hard scenes, pass 1 alone was closest everywhere; every later pass and the
-        published blends were worse (pass 2 RMSE ~2x pass 1), because where pass 1
-        saturates the emitters get weight ~0 (see bench/bench_bunnell.py, section 4).
+        Number of passes K >= 1: pass k weights each disk by ``1 - damping A_{k-1}(j)``
+        (near-field cells keep weight 1). Default 1 (see bench/bench_bunnell.py for the
+        measurements).
     theta : float, optional
         Opening parameter > 0: a cluster of summed area A and bounding radius b (disks
-        included) at distance d from the receiver is used as one disk iff
-        ``d^2 >= theta * max(A, pi b^2)`` and ``d > b``; otherwise it is opened (its
-        children, or a leaf's disks, are summed). ``max(A, pi b^2)`` is Bunnell's and
+        included) is used as one emitter only when every receiver of a bucket is at
+        ``d^2 >= theta * max(A, pi b^2)`` from its centre (and outside the near-field
+        reach of its disks); otherwise it is opened. ``max(A, pi b^2)`` is Bunnell's and
         Hoberock's ``d^2 >= eps A`` for compact clusters and keeps long thin clusters
         (A << b^2) from being merged too close. Larger = more accurate and slower;
         theta -> inf is the exact sum.
+    near : float, optional
+        Near-field factor >= 0: disks with ``r^2 < near A_j`` are replaced by their cells
+        (0: disks only, the published method).
+    sides : {"max", "front"}, optional
+        How the front and back sums make the occlusion (:func:`combine_sides`):
+        ``"max"`` (default) or ``"front"`` (front faces cast).
+    damping : float, optional
+        Pass weight damping in (0, 1]; 1 (with ``near=0``) is Bunnell's scheme.
     measure : {"cosine", "uniform"}, optional
     max_distance : float or None, optional
         Ignore disks whose centre is farther than this (mesh units); None = unbounded.
-        A cluster is skipped when ``d - b > max_distance`` and opened when it straddles
-        the limit, so the hierarchy honours it exactly.
+        A cluster is used whole only when it lies entirely inside the limit for every
+        receiver of a bucket, so the hierarchy honours it exactly.
     combine : {"last", "bunnell", "hoberock"}, optional
         How passes make the result, see :func:`combine_passes`.
     exact : bool, optional
@@ -355,13 +498,15 @@ def bunnell_ao(
 
     Notes
     -----
-    Skipped without dividing by zero: the receiver's own disk and coincident disks
-    (split vertices: ``r^2 <= 1e-12 A_j``). Disks with zero area (isolated vertices,
+    Receivers sit NEAR_OFFSET_REL edge lengths above their vertex along the normal (the
+    analogue of a ray origin offset). Skipped without dividing by zero: the receiver's
+    own disk and coincident disks (split vertices: ``r^2 <= 1e-12 A_j``); triangles
+    through the receiver are seen edge-on. Disks with zero area (isolated vertices,
     degenerate faces) or no normal cast nothing but still receive. A receiver without a
-    normal uses the mean of the receiver weight over all normal directions (1/4 for
-    cosine, 1/2 for uniform), i.e. its occlusion is the occluded fraction of the full
-    sphere. The method is scale and translation invariant (positions are recentred in
-    float64; every epsilon is relative).
+    normal uses disks only and the mean of the receiver weight over all normal
+    directions (1/4 for cosine, 1/2 for uniform): the occluded fraction of the full
+    sphere. Coordinates are recentred and normalised in float64 before the float32
+    kernels, so the method is scale and translation invariant.
     """
     passes = _check_int("passes", passes, 1)
     _check_combine(combine, passes)
@@ -375,6 +520,9 @@ def bunnell_ao(
         tree,
         passes=passes,
         theta=theta,
+        near=near,
+        sides=sides,
+        damping=damping,
         measure=measure,
         max_distance=max_distance,
         threads=threads,
@@ -383,21 +531,6 @@ def bunnell_ao(
     ao = combine_passes(occlusion, combine)
     _check_result(ao, "ao", lower=0.0, upper=1.0)
     return ao
-
-
-def tree_keys(positions: FloatArray) -> IndexArray:
-    """Integer keys for the tree build: positions quantised to ``_k.KEY_STEPS`` steps of
-    the largest bounding-box extent (the same step on every axis, so the longest axis is
-    still the longest). Returns (k, 3) int64; all zeros when every point coincides.
-    """
-    positions = np.asarray(positions, dtype=np.float64)
-    lo = positions.min(axis=0)
-    extent = float((positions.max(axis=0) - lo).max())
-    if not extent > 0.0:
-        return np.zeros(positions.shape, dtype=np.int64)
-    return np.ascontiguousarray(
-        np.floor((positions - lo) * (_k.KEY_STEPS / extent) + 0.5), dtype=np.int64
-    )
 
 
 @contextmanager
@@ -420,39 +553,14 @@ def numba_threads(threads: int | None):
 # helpers
 
 
-def pack_emitters(elements: DiskElements, order: IndexArray) -> _k.Emitters:
-    """Kernel rows of the casting disks ``order`` (weights 1), see ``_k.Emitters``."""
-    data = np.zeros((order.shape[0], _k.EMITTER_COLS))
-    data[:, _k.E_X : _k.E_Z + 1] = elements.positions[order]
-    data[:, _k.E_MX : _k.E_MZ + 1] = elements.normals[order]
-    data[:, _k.E_AREA] = elements.areas[order]
-    data[:, _k.E_WEIGHT] = 1.0
-    return _k.Emitters(data, np.ascontiguousarray(order, dtype=np.int64))
-
-
-def pack_tree(tree: ClusterTree, theta: float) -> _k.Tree:
-    """Kernel rows of a tree for one theta: geometry and the opening distance
-    ``open_d2 = max(theta max(A, pi b^2), b^2 (1 + ulp))`` (strictly outside the bounding
-    sphere whatever theta); the per-pass columns are left to ``_k.refit_nodes``.
-    """
-    data = np.zeros((tree.n_nodes, _k.NODE_COLS))
-    data[:, _k.N_X : _k.N_Z + 1] = tree.centers
-    data[:, _k.N_RADIUS] = tree.radii
-    data[:, _k.N_OPEN_D2] = np.maximum(
-        theta * np.maximum(tree.areas, np.pi * tree.radii**2), np.nextafter(tree.radii**2, np.inf)
-    )
-    data[:, _k.N_AREA] = tree.areas
-    return _k.Tree(tree.skip, tree.start, tree.stop, data)
-
-
 def _check_result(values: np.ndarray, what: str, *, lower: float, upper: float) -> None:
     bad = ~np.isfinite(values) | (values < lower) | (values > upper)
     if bad.any():
-        first = int(np.flatnonzero(bad)[0])
+        first = np.unravel_index(int(np.flatnonzero(bad)[0]), values.shape)[0]
         raise NumericalError(
-            f"bunnell: {int(bad.sum())} vertices have {what} outside [{lower}, {upper}] "
+            f"bunnell: {int(bad.sum())} values of {what} outside [{lower}, {upper}] "
             "or non-finite "
-            f"(first: vertex {first}, value {values[first]!r})"
+            f"(first: vertex {int(first)}, value {values[first]!r})"
         )
 
 
@@ -468,6 +576,11 @@ def _check_measure(measure: str) -> int:
     return MEASURES[measure]
 
 
+def _check_sides(sides: str) -> None:
+    if sides not in SIDES:
+        raise ValueError(f"sides must be one of {list(SIDES)}, got {sides!r}")
+
+
 def _check_combine(combine: str, passes: int) -> None:
     if combine not in COMBINES:
         raise ValueError(f"combine must be one of {list(COMBINES)}, got {combine!r}")
@@ -477,20 +590,34 @@ def _check_combine(combine: str, passes: int) -> None:
         )
 
 
+def _is_number(value) -> bool:
+    return not isinstance(value, bool) and isinstance(value, (int, float, np.floating, np.integer))
+
+
 def _check_theta(theta: float) -> float:
-    if isinstance(theta, bool) or not isinstance(theta, (int, float, np.floating, np.integer)):
+    if not _is_number(theta):
         raise ValueError(f"theta must be a positive number, got {theta!r}")
     if not (theta > 0.0) or math.isnan(theta):
         raise ValueError(f"theta must be > 0, got {theta!r}")
     return float(theta)
 
 
+def _check_damping(damping: float) -> float:
+    if not _is_number(damping) or not (0.0 < damping <= 1.0):
+        raise ValueError(f"damping must be in (0, 1], got {damping!r}")
+    return float(damping)
+
+
+def _check_near(near: float) -> float:
+    if not _is_number(near) or not (0.0 <= near < math.inf):
+        raise ValueError(f"near must be a finite number >= 0, got {near!r}")
+    return float(near)
+
+
 def _check_max_distance(max_distance: float | None) -> float:
     if max_distance is None:
         return math.inf
-    if isinstance(max_distance, bool) or not isinstance(
-        max_distance, (int, float, np.floating, np.integer)
-    ):
+    if not _is_number(max_distance):
         raise ValueError(f"max_distance must be a positive number or None, got {max_distance!r}")
     if not (0.0 < max_distance < math.inf):
         raise ValueError(

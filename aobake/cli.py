@@ -27,6 +27,36 @@ class AobakeGroup(click.Group):
             raise click.ClickException(str(exc)) from None
 
 
+class FieldSpec(click.ParamType):
+    """``FIELD.npz[@tx,ty,tz[,rx,ry,rz]]``: a field file and where its occluder goes.
+
+    Translation in mesh units; rotation in degrees about the fixed x, then y, then z
+    axes, applied before the translation (``aobake.field.rigid_transform``). The text
+    after the last ``@`` is read as the placement only when it is 3 or 6 numbers, so
+    paths containing ``@`` still work.
+    """
+
+    name = "FIELD[@tx,ty,tz[,rx,ry,rz]]"
+
+    def convert(self, value, param, ctx):
+        if isinstance(value, tuple):
+            return value
+        path, sep, tail = str(value).rpartition("@")
+        if sep:
+            parts = tail.split(",")
+            try:
+                numbers = tuple(float(t) for t in parts)
+            except ValueError:
+                numbers = None
+            if numbers is not None:
+                if len(numbers) not in (3, 6):
+                    self.fail(f"{value!r}: give 3 numbers (tx,ty,tz) or 6 (tx,ty,tz,rx,ry,rz)", param, ctx)
+                if not all(abs(v) < float("inf") for v in numbers):
+                    self.fail(f"{value!r}: the placement must be finite numbers", param, ctx)
+                return Path(path), numbers
+        return Path(str(value)), None
+
+
 def common_options(f):
     """--seed, --threads, --quiet: shared by every command that computes."""
     f = click.option("--quiet", "-q", is_flag=True, help="No progress bar or summary on stderr.")(f)
@@ -49,6 +79,39 @@ def main():
     """
 
 
+# Options each --method takes (library keyword names); "seed" is silently unused by bunnell.
+METHOD_OPTIONS = {
+    "embree": ("n_rays", "measure", "max_distance", "bias", "seed", "tolerance", "threads"),
+    "bunnell": ("measure", "max_distance", "passes", "theta", "near", "threads"),
+    "hybrid": ("n_rays", "measure", "max_distance", "bias", "seed", "theta", "reach", "threads"),
+}
+FLAGS = {"n_rays": "--rays"}
+
+
+def _method_options(method: str, **given) -> dict:
+    """The options ``method`` takes; a usage error for one set on the command line that it
+    does not take. Options left at a default of None (and hybrid's --rays, whose CLI
+    default is embree's) are not passed, so the library's defaults apply."""
+    ctx = click.get_current_context()
+    source = {"n_rays": "rays"}
+    wanted = METHOD_OPTIONS[method]
+    out = {}
+    for name, value in given.items():
+        explicit = ctx.get_parameter_source(source.get(name, name)) not in (
+            click.core.ParameterSource.DEFAULT,
+            click.core.ParameterSource.DEFAULT_MAP,
+        )
+        if name not in wanted:
+            if explicit and name != "seed":
+                flag = FLAGS.get(name, "--" + name.replace("_", "-"))
+                raise click.UsageError(f"{flag} does not apply to --method {method}")
+            continue
+        if value is None or (method == "hybrid" and name == "n_rays" and not explicit):
+            continue
+        out[name] = value
+    return out
+
+
 @main.command()
 @click.argument("mesh", type=click.Path(path_type=Path))
 @click.option(
@@ -60,7 +123,12 @@ def main():
     help="Output .ply, .usda, .usdc or .usd (repeat for several formats from one bake).",
 )
 @click.option(
-    "--method", type=click.Choice(["embree"]), default="embree", show_default=True, help="AO method."
+    "--method",
+    type=click.Choice(["embree", "bunnell", "hybrid"]),
+    default="embree",
+    show_default=True,
+    help="embree: ray casting (the reference); bunnell: disk and polygon form factors, no "
+    "rays; hybrid: short rays near each vertex, disks beyond.",
 )
 @click.option("--rays", type=click.IntRange(min=1), default=256, show_default=True, help="Rays per vertex (max).")
 @click.option(
@@ -85,6 +153,27 @@ def main():
     default=None,
     help="Adaptive: stop a vertex once its 95% interval half-width is below this.",
 )
+@click.option(
+    "--passes", type=click.IntRange(min=1), default=None, help="bunnell: occlusion passes [default: 1]."
+)
+@click.option(
+    "--theta",
+    type=click.FloatRange(min=0, min_open=True),
+    default=None,
+    help="bunnell, hybrid: opening parameter of the disk tree (larger = slower, more exact) [default: 4].",
+)
+@click.option(
+    "--near",
+    type=click.FloatRange(min=0),
+    default=None,
+    help="bunnell: disks closer than sqrt(NEAR * area) become exact polygons (0 = disks only) [default: 4].",
+)
+@click.option(
+    "--reach",
+    type=click.FloatRange(min=0, min_open=True),
+    default=None,
+    help="hybrid: ray length in local edge lengths [default: 4]; --rays defaults to 16.",
+)
 @click.option("--color", is_flag=True, help="Also write ao as grey vertex colours.")
 @click.option(
     "--up", type=click.Choice(["Y", "Z"]), default=None, help="USD stage up axis [default: the input's, else Y]."
@@ -95,12 +184,25 @@ def main():
     default=None,
     help="USD metersPerUnit [default: the input's, else 1].",
 )
+@click.option(
+    "--field",
+    "fields",
+    multiple=True,
+    type=FieldSpec(),
+    help="An AO field (from `aobake field`) of a rigid occluder, optionally placed: "
+    "FIELD.npz@tx,ty,tz[,rx,ry,rz] (mesh units; degrees about x, then y, then z). "
+    "Repeatable; each multiplies ao by its 1 - A_k.",
+)
 @common_options
-def bake(mesh, output, method, rays, measure, max_distance, bias, tolerance, color, up, meters_per_unit, seed, threads, quiet):
+def bake(
+    mesh, output, method, rays, measure, max_distance, bias, tolerance, passes, theta, near, reach, color, up,
+    meters_per_unit, fields, seed, threads, quiet
+):
     """Bake AO of MESH into OUTPUT as the per-vertex attribute `ao`.
 
     `ao` = 1 - A: 1 = fully open, 0 = fully occluded. MESH: PLY, OBJ, STL, OFF,
-    GLB/glTF or USD; vertex count and order are kept.
+    GLB/glTF or USD; vertex count and order are kept. With --field, the mesh's own AO
+    is multiplied by each occluder's: 1 - A = (1 - A_self) prod (1 - A_k).
     """
     from .pipeline import bake_file
     from .progress import make_progress
@@ -113,12 +215,81 @@ def bake(mesh, output, method, rays, measure, max_distance, bias, tolerance, col
         up_axis=up,
         meters_per_unit=meters_per_unit,
         progress=make_progress(quiet),
-        n_rays=rays,
-        measure=measure,
-        max_distance=max_distance,
-        bias=bias,
+        fields=fields,
+        **_method_options(
+            method, n_rays=rays, measure=measure, max_distance=max_distance, bias=bias, seed=seed,
+            tolerance=tolerance, passes=passes, theta=theta, near=near, reach=reach, threads=threads,
+        ),
+    )
+    if not quiet:
+        click.echo(report.summary(), err=True)
+
+
+@main.command("field")
+@click.argument("occluder", type=click.Path(path_type=Path))
+@click.option("-o", "--output", required=True, type=click.Path(path_type=Path), help="Output FIELD.npz.")
+@click.option(
+    "--sampler",
+    type=click.Choice(["raster", "embree"]),
+    default="raster",
+    show_default=True,
+    help="Omega and Y at the sample points: CPU cube-map rasterizer or Embree rays.",
+)
+@click.option(
+    "--resolution", type=click.IntRange(min=1), default=16, show_default=True, help="Field texels per cube-face edge."
+)
+@click.option(
+    "--radial-samples", type=click.IntRange(min=3), default=15, show_default=True, help="Sample distances per texel."
+)
+@click.option(
+    "--raster-size", type=click.IntRange(min=1), default=32, show_default=True, help="Rasterizer cube-map edge (texels)."
+)
+@click.option("--rays", type=click.IntRange(min=1), default=1024, show_default=True, help="Embree rays per sample point.")
+@click.option(
+    "--r-far",
+    type=click.FloatRange(min=0, min_open=True),
+    default=None,
+    help="Outer radius of the field (mesh units) [default: 8 x the bounding radius].",
+)
+@click.option(
+    "--model",
+    type=click.Choice(["cap", "paper", "table"]),
+    default="cap",
+    show_default=True,
+    help="Radial model: 7 scalars per texel (cap: cap half-angle; paper: 1/Omega) or the sampled table.",
+)
+@click.option(
+    "--prefilter",
+    type=click.IntRange(min=1),
+    default=1,
+    show_default=True,
+    help="Box prefilter: sub-directions per texel edge.",
+)
+@common_options
+def field_command(
+    occluder, output, sampler, resolution, radial_samples, raster_size, rays, r_far, model, prefilter, seed, threads, quiet
+):
+    """Fit the ambient occlusion field of the rigid OCCLUDER into FIELD.npz.
+
+    Use it with `aobake bake RECEIVER -o OUT --field FIELD.npz[@tx,ty,tz[,rx,ry,rz]]`:
+    the occluder's contact shadows on any receiver, at the cost of a table lookup.
+    """
+    from .pipeline import fit_field_file
+    from .progress import make_progress
+
+    report = fit_field_file(
+        occluder,
+        output,
+        progress=make_progress(quiet),
+        sampler=sampler,
+        resolution=resolution,
+        radial_samples=radial_samples,
+        raster_size=raster_size,
+        rays=rays,
+        r_far=r_far,
+        model=model,
+        prefilter=prefilter,
         seed=seed,
-        tolerance=tolerance,
         threads=threads,
     )
     if not quiet:

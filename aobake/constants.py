@@ -62,3 +62,35 @@ DEFAULT_METERS_PER_UNIT = 1.0
 # scene and one short ray per vertex each): enough for every object of a typical scene
 # to be its own group, bounded for meshes made of thousands of loose pieces.
 MAX_CONTACT_GROUPS = 16
+
+# Disk method (aobake.bunnell, aobake.kernels.bunnell / hierarchy / polygon) ------------
+
+# Near field: a receiver closer to a triangle's plane than this many edge lengths
+# (sqrt(2 area)) sees the triangle edge-on and gets nothing from it. Relative, so scale
+# invariant; 1e-6 is far below any real gap between surfaces but above the rounding of
+# recentred float64 coordinates (a receiver on the triangle's own plane, e.g. its own
+# corner, computes h ~ 1e-16 of the edge length).
+NEAR_PLANE_REL = 1e-6
+
+# Receivers are evaluated at p + NEAR_OFFSET_REL * sqrt(A_p) * n (A_p: the vertex's disk
+# area, ~ an edge length squared), the disk method's analogue of a ray origin offset: a
+# face lying on the receiver's own plane (a box resting on another, the far side of a
+# solid whose face meets the receiver's face at a crease) is then seen from the side the
+# normal points to, as a ray from the surface would see it. 100x NEAR_PLANE_REL, so such
+# faces are never taken as edge-on; 1e-4 edge lengths changes no other term measurably.
+NEAR_OFFSET_REL = 1e-4
+
+# An emitter closer to the receiver than sqrt(COINCIDENT_REL * A) is treated as the same
+# point (split vertices share a position) and skipped when its disk is used: relative to
+# the emitter's own size, so the test is scale invariant; 1e-12 means r < 1e-6 disk radii.
+COINCIDENT_REL = 1e-12
+
+# Tree keys: positions quantised to this many steps of the scene's largest extent. Integer
+# keys make the tree topology (and so the result) exactly invariant under scaling and
+# translation unless a coordinate falls within rounding of a step boundary; 2**20 steps
+# keep ~1e-6 of the extent as resolution, far finer than any useful split.
+TREE_KEY_STEPS = 1 << 20
+
+# Pending-range stack of the iterative tree build. Median splits halve the range, so the
+# stack never holds more than ~log2(k) + 2 entries; 128 covers any k < 2**120.
+TREE_BUILD_STACK = 128

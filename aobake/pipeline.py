@@ -22,7 +22,7 @@ from .io_common import check_output_dir, output_kind
 from .mesh import Surface
 from .progress import Progress
 
-METHODS = ("embree",)
+METHODS = ("embree", "bunnell", "hybrid")
 
 
 @dataclass(frozen=True)
@@ -41,6 +41,10 @@ class BakeReport:
     contacts : int
         Vertices whose ray origin was mirrored at a contact (embree).
     options : dict
+    field_skipped : tuple of int
+        Per ``--field``, receivers beyond its r_far (not evaluated).
+    field_seconds : float
+        Time spent evaluating the fields (not in ``seconds``).
     """
 
     source: str
@@ -51,6 +55,8 @@ class BakeReport:
     seconds: float
     contacts: int = 0
     options: dict = field(default_factory=dict)
+    field_skipped: tuple = ()
+    field_seconds: float = 0.0
 
     def summary(self) -> str:
         """One line: vertices, rays, seconds, rays per second."""
@@ -62,6 +68,12 @@ class BakeReport:
             text += f" in {self.seconds:.2f} s"
         if self.contacts:
             text += f", {self.contacts} contact vertices"
+        if self.field_skipped:
+            skipped = " + ".join(str(k) for k in self.field_skipped)
+            text += (
+                f", x {len(self.field_skipped)} field(s) in {self.field_seconds:.2f} s"
+                f" ({skipped} receivers beyond r_far)"
+            )
         return text + f" -> {self.output}"
 
 
@@ -82,6 +94,15 @@ def _compute(surface: Surface, method: str, options: dict, progress: Progress | 
 
         result = embree_ao(surface, progress=progress, **options)
         return result.ao, result.n_rays, result.contacts
+    if method == "bunnell":
+        from .bunnell import bunnell_ao
+
+        return bunnell_ao(surface, progress=progress, **options), 0, 0
+    if method == "hybrid":
+        from .hybrid import hybrid_ao
+
+        result = hybrid_ao(surface, progress=progress, **options)
+        return result.ao, result.n_rays, result.contacts
     raise ValueError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
 
 
@@ -92,8 +113,12 @@ def bake(mesh: Any, method: str = "embree", *, progress: Progress | None = None,
     ----------
     mesh : str, Path, trimesh.Trimesh, trimesh.Scene or Surface
         What to bake; a multi-mesh scene is one occluding scene.
-    method : {"embree"}
-        ``"embree"``: Monte Carlo ray casting (the reference).
+    method : {"embree", "bunnell", "hybrid"}
+        ``"embree"``: Monte Carlo ray casting (the reference). ``"bunnell"``: summed disk
+        and polygon form factors over a cluster tree, no rays
+        (:func:`aobake.bunnell.bunnell_ao`: ``passes``, ``theta``, ``near``, ...).
+        ``"hybrid"``: short rays near each vertex, disks beyond
+        (:func:`aobake.hybrid.hybrid_ao`: ``n_rays``, ``reach``, ...).
     progress : Progress, optional
     **options
         Passed to the method, e.g. ``n_rays``, ``measure``, ``max_distance``, ``bias``,
@@ -125,6 +150,7 @@ def bake_file(
     up_axis: str | None = None,
     meters_per_unit: float | None = None,
     progress: Progress | None = None,
+    fields: Sequence = (),
     **options,
 ) -> BakeReport:
     """Load ``source``, bake it once, write ``output`` (.ply, .usda, .usdc or .usd) atomically.
@@ -134,6 +160,13 @@ def bake_file(
     nothing is written unless the whole bake and every write succeed. ``up_axis`` and
     ``meters_per_unit`` (USD stage metrics) default to the input's own (USD, glTF),
     else "Y" and 1.0.
+
+    ``fields``: ambient occlusion fields of rigid occluders placed around the mesh,
+    each an :class:`~aobake.field.AOField` or a ``.npz`` path, alone or as
+    ``(field, transform)`` with a (4, 4) rigid transform or ``(tx, ty, tz[, rx, ry,
+    rz])`` (degrees, see :func:`~aobake.field.rigid_transform`). Loaded (and checked)
+    before computing; the mesh's own AO from ``method`` is multiplied by every
+    field's 1 - A_k (:func:`~aobake.field.fields_ao`).
 
     Returns
     -------
@@ -148,14 +181,21 @@ def bake_file(
     for path in outputs:
         output_kind(path)
         check_output_dir(path)
+    placed = _load_fields(fields)
     surface = as_surface(source)
     t0 = time.perf_counter()
     ao, n_rays, contacts = _compute(surface, method, options, progress)
     seconds = time.perf_counter() - t0
+    skipped: tuple = ()
+    if placed:
+        ao, skipped = _apply_fields(surface, ao, placed, options.get("threads"))
+    field_seconds = time.perf_counter() - t0 - seconds
     if ao.shape != (surface.n_vertices,):
         raise NumericalError(f"{surface.source}: {method} returned {ao.shape} values for {surface.n_vertices} vertices")
     custom = {"method": method, "version": __version__, "source": Path(str(source)).name}
     custom.update({k: ("none" if v is None else v) for k, v in options.items() if k not in ("threads", "chunk_rays")})
+    if placed:
+        custom["fields"] = [name for _, _, name in placed]
     # Stage metrics: what the caller says, else what the input said (USD, glTF), else
     # the documented defaults. An unauthored metersPerUnit would mean centimetres.
     meta = surface.metadata
@@ -181,6 +221,8 @@ def bake_file(
         seconds=seconds,
         contacts=contacts,
         options=dict(options),
+        field_skipped=skipped,
+        field_seconds=field_seconds if placed else 0.0,
     )
 
 
@@ -358,3 +400,110 @@ def render_comparison(reference, candidate, output, *, size: int = 480, up: str 
     limit = float(np.nanmax(np.abs(diff))) if np.isfinite(diff).any() else 1.0
     gap = np.ones((size, 8, 3))
     write_png(output, np.concatenate([grey(ia), gap, grey(ib), gap, error_colours(diff, limit)], axis=1))
+
+
+# --------------------------------------------------------------------------------------
+# ambient occlusion fields
+
+
+@dataclass(frozen=True)
+class FieldReport:
+    """What :func:`fit_field_file` did, for the one-line summary and for scripts.
+
+    Attributes
+    ----------
+    source, output : str
+    field : AOField
+    seconds : float
+        Fit time (loading and writing excluded).
+    n_bytes : int
+        Size of the written file.
+    """
+
+    source: str
+    output: str
+    field: Any
+    seconds: float
+    n_bytes: int
+
+    def summary(self) -> str:
+        """One line: layout, sampler, time, fit residuals, size."""
+        f = self.field
+        p = f.params
+        quality = f"{p.get('raster_size')} px" if p.get("sampler") == "raster" else f"{p.get('rays')} rays"
+        return (
+            f"{self.source}: field {f.resolution}x{f.resolution}x6, {p.get('radial_samples')} radial samples, "
+            f"{f.model} model, {p.get('sampler')} ({quality}) in {self.seconds:.2f} s; "
+            f"residuals Omega {f.omega_rms:.4f} sr, Y {f.y_rms_degrees:.2f} deg; "
+            f"r_far {f.r_far:.4g}; {self.n_bytes / 1024:.0f} KB -> {self.output}"
+        )
+
+
+def fit_field_file(
+    source: str | Path,
+    output: str | Path,
+    *,
+    progress: Progress | None = None,
+    **options,
+) -> FieldReport:
+    """Load an occluder, fit its ambient occlusion field, write ``output`` (.npz) atomically.
+
+    The suffix and directory are checked before loading or fitting. ``options`` go to
+    :func:`aobake.field.fit_field` (``sampler``, ``resolution``, ``radial_samples``,
+    ``raster_size``, ``rays``, ``r_far``, ``prefilter``, ``model``, ``seed``,
+    ``threads``).
+
+    Returns
+    -------
+    FieldReport
+    """
+    from .field import fit_field, save_field
+
+    output = Path(output)
+    if output.suffix.lower() != ".npz":
+        raise FormatError(f"{output.name}: a field is written as .npz, got {output.suffix or '(no suffix)'!r}")
+    check_output_dir(output)
+    surface = as_surface(source)
+    result = fit_field(surface, progress=progress, **options)
+    save_field(result, output)
+    return FieldReport(
+        source=Path(str(source)).name,
+        output=str(output),
+        field=result,
+        seconds=result.seconds,
+        n_bytes=output.stat().st_size,
+    )
+
+
+def _load_fields(fields) -> list:
+    """[(AOField, transform or None, name)] from AOFields, paths, or (item, transform)."""
+    from .field import AOField, load_field, rigid_transform
+
+    out = []
+    for item in fields or ():
+        transform = None
+        if isinstance(item, tuple):
+            item, transform = item
+        if transform is not None and np.ndim(transform) == 1:
+            values = [float(v) for v in transform]
+            if len(values) not in (3, 6):
+                raise ValueError(f"a field placement has 3 or 6 numbers (tx, ty, tz[, rx, ry, rz]), got {len(values)}")
+            transform = rigid_transform(values[:3], values[3:] if len(values) == 6 else (0.0, 0.0, 0.0))
+        f = item if isinstance(item, AOField) else load_field(item)
+        name = f.occluder_name if isinstance(item, AOField) else Path(item).name
+        out.append((f, transform, name))
+    return out
+
+
+def _apply_fields(surface: Surface, ao: AOArray, placed: list, threads) -> tuple[AOArray, tuple]:
+    """``ao`` times every field's 1 - A_k at the surface's vertices, and the skips."""
+    from .field import fields_ao
+
+    result = fields_ao(
+        [f for f, _, _ in placed],
+        surface.positions,
+        surface.normals,
+        transforms=[t for _, t, _ in placed],
+        threads=threads,
+    )
+    return np.asarray(ao) * result.ao, result.skipped

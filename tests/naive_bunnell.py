@@ -43,64 +43,164 @@ def naive_vertex_areas(positions: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return areas
 
 
-def naive_occlusion_sum(positions, normals, areas, weights, measure="cosine", max_distance=None):
-    """Unsaturated sum of disk terms at every vertex, one receiver at a time.
+def clip_polygon(corners, point, normal):
+    """Sutherland-Hodgman: the part of a planar polygon with ``normal.(x - point) >= 0``."""
+    out = []
+    k = len(corners)
+    for a in range(k):
+        x0, x1 = corners[a], corners[(a + 1) % k]
+        h0, h1 = np.dot(normal, x0 - point), np.dot(normal, x1 - point)
+        if h0 >= 0:
+            out.append(x0)
+        if (h0 >= 0) != (h1 >= 0):
+            out.append(x0 + h0 / (h0 - h1) * (x1 - x0))
+    return out
 
-    Emitters: vertices with area > 0 and a nonzero normal. Skipped: the receiver itself,
-    emitters with r^2 <= 1e-12 A (coincident), r > max_distance, back faces (front faces
-    cast). A receiver without a normal uses the mean receiver weight (1/4 cosine, 1/2
-    uniform).
+
+def polygon_form_factor(corners, point, normal):
+    """Lambert: cosine-weighted occlusion of ``point`` by a planar polygon (either winding),
+    after clipping it to the tangent plane; arccos form of the contour sum."""
+    poly = clip_polygon([np.asarray(c, dtype=float) for c in corners], point, normal)
+    if len(poly) < 3:
+        return 0.0
+    u = [(c - point) / np.linalg.norm(c - point) for c in poly]
+    total = 0.0
+    for a in range(len(u)):
+        v0, v1 = u[a], u[(a + 1) % len(u)]
+        cross = np.cross(v0, v1)
+        s = np.linalg.norm(cross)
+        if s == 0:
+            continue
+        total += np.arccos(np.clip(np.dot(v0, v1), -1, 1)) * np.dot(normal, cross) / s
+    return abs(total) / (2 * np.pi)
+
+
+def polygon_solid_angle(corners, point, normal):
+    """Solid angle / 2 pi of the clipped polygon: a fan of van Oosterom-Strackee triangles."""
+    poly = clip_polygon([np.asarray(c, dtype=float) for c in corners], point, normal)
+    total = 0.0
+    for a in range(1, len(poly) - 1):
+        r1, r2, r3 = poly[0] - point, poly[a] - point, poly[a + 1] - point
+        l1, l2, l3 = np.linalg.norm(r1), np.linalg.norm(r2), np.linalg.norm(r3)
+        num = np.dot(r1, np.cross(r2, r3))
+        den = l1 * l2 * l3 + np.dot(r1, r2) * l3 + np.dot(r1, r3) * l2 + np.dot(r2, r3) * l1
+        total += 2 * np.arctan2(num, den)
+    return abs(total) / (2 * np.pi)
+
+
+def naive_cell(positions, faces, j, point, normal, measure="cosine"):
+    """(front, back) of vertex j's barycentric cell at a receiver: per triangle around j
+    (``faces``: those triangles, or all), the quad (j, edge midpoint, centroid, edge
+    midpoint); skipped when the receiver lies within 1e-6 edge lengths of the triangle's
+    plane."""
+    front = back = 0.0
+    fn = polygon_form_factor if measure == "cosine" else polygon_solid_angle
+    for f in faces:
+        if j not in f:
+            continue
+        k = list(f).index(j)
+        a, b, c = positions[f[k]], positions[f[(k + 1) % 3]], positions[f[(k + 2) % 3]]
+        m = np.cross(b - a, c - a)
+        area2 = np.linalg.norm(m)
+        if area2 == 0:
+            continue
+        h = np.dot(m, point - a) / area2
+        if abs(h) <= 1e-6 * np.sqrt(area2):
+            continue
+        value = fn([a, (a + b) / 2, (a + b + c) / 3, (a + c) / 2], point, normal)
+        if h > 0:
+            front += value
+        else:
+            back += value
+    return front, back
+
+
+def naive_sums(
+    positions, normals, areas, faces, points, weights, measure="cosine", max_distance=None,
+    near=0.0, cell_weights=None,
+):
+    """Unsaturated (front, back) sums at every vertex, one receiver at a time.
+
+    Emitters: vertices with area > 0 and a nonzero normal, disk centres ``positions``;
+    receivers at ``points``. Skipped: the receiver itself, emitters farther than
+    max_distance, zero weights. Near field (a receiver with a normal and
+    ``r^2 < near A``, decided in float32 like the kernels): the emitter's cell
+    (:func:`naive_cell`) times its cell weight. Otherwise the disk: skipped when
+    coincident (r^2 <= 1e-12 A); a receiver without a normal uses the mean receiver
+    weight (1/4 cosine, 1/2 uniform); ``front`` when the emitter faces the receiver.
     """
     positions = np.asarray(positions, dtype=np.float64)
+    cell_weights = weights if cell_weights is None else cell_weights
     n = len(positions)
     casts = (areas > 0) & (np.linalg.norm(normals, axis=1) > 0)
-    out = np.zeros(n)
+    out = np.zeros((n, 2))
+    p32, a32 = positions.astype(np.float32), areas.astype(np.float32)
+    around = [[] for _ in range(n)]
+    for f in np.asarray(faces):
+        for v in set(f.tolist()):
+            around[v].append(f)
     for i in range(n):
-        d = positions - positions[i]
-        r = np.linalg.norm(d, axis=1)
-        ok = casts.copy()
-        ok[i] = False
-        ok &= r**2 > 1e-12 * areas
-        if max_distance is not None:
-            ok &= r <= max_distance
-        if not ok.any():
-            continue
-        v = d[ok] / r[ok, None]
-        a = areas[ok]
-        cos_e = np.maximum(-np.einsum("ij,ij->i", normals[ok], v), 0.0)
+        p = points[i]
         has_normal = np.linalg.norm(normals[i]) > 0
-        cos_r = v @ normals[i]
-        if measure == "cosine":
-            g = np.maximum(cos_r, 0.0) if has_normal else np.full(len(a), 0.25)
-            term = a * cos_e * g / (np.pi * r[ok] ** 2 + a)
-        else:
-            g = np.clip(4.0 * cos_r, 0.0, 1.0) if has_normal else np.full(len(a), 0.5)
-            term = (1.0 - r[ok] / np.sqrt(a / np.pi + r[ok] ** 2)) * cos_e * g
-        out[i] = np.sum(weights[ok] * term)
+        d32 = p32 - p.astype(np.float32)
+        r2_32 = (d32 * d32).sum(axis=1, dtype=np.float32)
+        for j in np.flatnonzero(casts):
+            if j == i:
+                continue
+            d = positions[j] - p
+            r2 = d @ d
+            if max_distance is not None and r2 > max_distance**2:
+                continue
+            if has_normal and r2_32[j] < np.float32(near) * a32[j]:
+                f, b = naive_cell(positions, around[j], j, p, normals[i], measure)
+                out[i] += cell_weights[j] * np.array([f, b])
+                continue
+            if r2 <= 1e-12 * areas[j] or weights[j] <= 0:
+                continue
+            r = np.sqrt(r2)
+            cos_e = -normals[j] @ d / r
+            cos_r = normals[i] @ d / r
+            a = areas[j]
+            if measure == "cosine":
+                g = max(cos_r, 0.0) if has_normal else 0.25
+                term = a * abs(cos_e) * g / (np.pi * r2 + a)
+            else:
+                g = np.clip(4.0 * cos_r, 0.0, 1.0) if has_normal else 0.5
+                term = (1.0 - r / np.sqrt(a / np.pi + r2)) * abs(cos_e) * g
+            out[i, 0 if cos_e > 0 else 1] += weights[j] * term
     return out
 
 
 def naive_bunnell_ao(
-    surface: Surface, passes=2, measure="cosine", max_distance=None, combine="last"
+    surface: Surface, passes=2, measure="cosine", max_distance=None, combine="last", near=0.0,
+    sides="max", damping=1.0,
 ):
     """Exact (no hierarchy) multi-pass disk AO, straight from the definitions.
+
+    Coordinates are normalised like the kernels' (bounding-box centre and largest
+    extent); receivers sit 1e-4 sqrt(A) above their vertex along the normal; in pass k
+    disk weights are ``1 - damping A_{k-1}``, cell weights 1.
 
     Returns
     -------
     ao : (n,) float64, and occlusion : (K, n) float64 of every pass.
     """
-    positions = surface.positions - 0.5 * (surface.positions.min(0) + surface.positions.max(0))
+    lo, hi = surface.positions.min(0), surface.positions.max(0)
+    scale = float((hi - lo).max())
+    positions = (surface.positions - 0.5 * (lo + hi)) / scale
     areas = naive_vertex_areas(positions, surface.faces)
+    points = positions + 1e-4 * np.sqrt(areas)[:, None] * surface.normals
+    reach = None if max_distance is None else max_distance / scale
     weights = np.ones(len(positions))
     occ = []
     for _ in range(passes):
-        a = np.clip(
-            naive_occlusion_sum(positions, surface.normals, areas, weights, measure, max_distance),
-            0,
-            1,
+        sums = naive_sums(
+            positions, surface.normals, areas, surface.faces, points, weights, measure, reach,
+            near, np.ones(len(positions)),
         )
+        a = np.clip(sums.max(axis=1) if sides == "max" else sums[:, 0], 0, 1)
         occ.append(a)
-        weights = 1.0 - a
+        weights = 1.0 - damping * a
     occ = np.array(occ)
     if combine == "last":
         ao = 1.0 - occ[-1]

@@ -15,7 +15,7 @@ LAYERS = {
     "constants": 0, "errors": 0, "_types": 0,
     "kernels": 1,
     "mesh": 2, "sampling": 2, "progress": 2, "io_common": 2, "ply": 2, "readers": 2,
-    "raytrace": 3, "bunnell": 3, "field": 3, "raster": 3, "hierarchy": 3,
+    "raytrace": 3, "bunnell": 3, "field": 3, "raster": 3, "hierarchy": 3, "hybrid": 3,
     "io_ply": 4, "io_usd": 4, "formats": 4, "preview": 4,
     "pipeline": 5, "compare": 5, "sweep": 5,
     "cli": 6, "__main__": 6, "__init__": 6,

@@ -1,0 +1,299 @@
+"""Compiled loops of the disk method's cluster tree: build, geometry, per-pass refit.
+
+Imports numpy, numba and ``aobake.constants`` only. The tree is flat: nodes in depth-first
+preorder, the first child of an internal node ``q`` is ``q + 1`` and ``skip[q]`` is the
+node after ``q``'s subtree, so ``skip[q] == q + 1`` marks a leaf and traversal needs
+neither recursion nor a stack. Node ``q`` holds emitters ``start[q]:stop[q]`` (tree order).
+
+Node rows (float32, one 64-byte cache line per node, written by :func:`pack_nodes` and
+:func:`refit_nodes`; the traversal reads columns 0-5 before it decides):
+
+- N_X..N_Z: area-weighted mean disk centre; N_RADIUS: bounding radius b (disks included);
+- N_OPEN_D2: squared distance from the receivers beyond which the node is used whole;
+- N_WAREA: ``A_w = sum w A`` (w: the emitter's pass weight);
+- N_NX..N_NZ: ``N = sum w A m`` (m: unit disk normal);
+- N_TXX..N_TYZ: ``kappa^2 T`` with ``T = sum w A m m^T`` (see ``bunnell.cluster_projection``);
+- N_AREA: summed area A.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, prange
+
+from aobake.constants import FASTMATH, TREE_BUILD_STACK
+
+N_X, N_Y, N_Z, N_RADIUS, N_OPEN_D2, N_WAREA = 0, 1, 2, 3, 4, 5
+N_NX, N_NY, N_NZ = 6, 7, 8
+N_TXX, N_TYY, N_TZZ, N_TXY, N_TXZ, N_TYZ = 9, 10, 11, 12, 13, 14
+N_AREA = 15
+NODE_COLS = 16
+# per-pass sums (float64, internal to refit_nodes): A_w, N (3), T (6)
+MOMENT_COLS = 10
+
+# Emitter rows (float32): centre, unit normal, area, pass weight.
+E_X, E_Y, E_Z, E_MX, E_MY, E_MZ, E_AREA, E_WEIGHT = 0, 1, 2, 3, 4, 5, 6, 7
+EMITTER_COLS = 8
+
+
+@njit(cache=True, fastmath=FASTMATH, error_model="numpy")
+def build_tree(keys, leaf_size):
+    """Median-split binary tree over integer point keys, built iteratively (explicit stack).
+
+    Each range longer than ``leaf_size`` is split at its middle index after a quickselect
+    on the longest axis of its keys' bounding box, ordering by (key, index) so ties are
+    broken by the input order; when all keys coincide (zero extent) the split is by
+    index alone, so the build always terminates. Integer keys (positions quantised by the
+    caller) make the tree, and so the result, identical under scaling and translation.
+
+    Parameters
+    ----------
+    keys : (k, 3) int64, k >= 1
+    leaf_size : int >= 1
+
+    Returns
+    -------
+    order : (k,) int64
+        Tree order: node ranges index ``order``.
+    start, stop, skip : (m,) int64
+        Node ranges and skip pointers (preorder, first child = q + 1).
+    """
+    k = keys.shape[0]
+    order = np.arange(k)
+    cap = 2 * k
+    start = np.zeros(cap, dtype=np.int64)
+    stop = np.zeros(cap, dtype=np.int64)
+    parent = np.full(cap, -1, dtype=np.int64)
+    stack = np.zeros((TREE_BUILD_STACK, 3), dtype=np.int64)
+    stack[0, 0] = 0
+    stack[0, 1] = k
+    stack[0, 2] = -1
+    sp = 1
+    m = 0
+    while sp > 0:
+        sp -= 1
+        lo = stack[sp, 0]
+        hi = stack[sp, 1]
+        node = m
+        m += 1
+        start[node] = lo
+        stop[node] = hi
+        parent[node] = stack[sp, 2]
+        if hi - lo <= leaf_size:
+            continue
+        axis, extent = longest_axis(keys, order, lo, hi)
+        mid = (lo + hi) // 2
+        if extent > 0:
+            select(keys, order, lo, hi, mid, axis)
+        # right pushed first so the left child is popped next and gets index node + 1
+        stack[sp, 0] = mid
+        stack[sp, 1] = hi
+        stack[sp, 2] = node
+        stack[sp + 1, 0] = lo
+        stack[sp + 1, 1] = mid
+        stack[sp + 1, 2] = node
+        sp += 2
+    size = np.ones(m, dtype=np.int64)
+    for node in range(m - 1, 0, -1):
+        size[parent[node]] += size[node]
+    skip = np.arange(m) + size
+    return order, start[:m].copy(), stop[:m].copy(), skip
+
+
+@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+def longest_axis(keys, order, lo, hi):
+    """Axis (0, 1, 2) and extent of the longest side of the bounding box of order[lo:hi]
+    (ties go to the lower axis)."""
+    j = order[lo]
+    lo_x = keys[j, 0]
+    lo_y = keys[j, 1]
+    lo_z = keys[j, 2]
+    hi_x = lo_x
+    hi_y = lo_y
+    hi_z = lo_z
+    for t in range(lo + 1, hi):
+        j = order[t]
+        lo_x = min(lo_x, keys[j, 0])
+        hi_x = max(hi_x, keys[j, 0])
+        lo_y = min(lo_y, keys[j, 1])
+        hi_y = max(hi_y, keys[j, 1])
+        lo_z = min(lo_z, keys[j, 2])
+        hi_z = max(hi_z, keys[j, 2])
+    ex = hi_x - lo_x
+    ey = hi_y - lo_y
+    ez = hi_z - lo_z
+    if ex >= ey and ex >= ez:
+        return 0, ex
+    if ey >= ez:
+        return 1, ey
+    return 2, ez
+
+
+@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+def key_less(keys, a, b, axis):
+    """Strict order on elements: by key along ``axis``, then by index (all pairs distinct)."""
+    ka = keys[a, axis]
+    kb = keys[b, axis]
+    return ka < kb or (ka == kb and a < b)
+
+
+@njit(cache=True, fastmath=FASTMATH, error_model="numpy")
+def select(keys, order, lo, hi, kth, axis):
+    """Reorder order[lo:hi] in place so that order[kth] is the element of rank kth - lo
+    under :func:`key_less`, smaller ones left of it and larger ones right.
+
+    Hoare-partition quickselect with a median-of-three pivot; deterministic, and since
+    the order is strict (ties broken by index) equal keys cannot make it quadratic.
+    """
+    left = lo
+    right = hi - 1
+    while right > left:
+        a = order[left]
+        b = order[(left + right) // 2]
+        c = order[right]
+        # median of three under key_less
+        if key_less(keys, b, a, axis):
+            a, b = b, a
+        if key_less(keys, c, b, axis):
+            b = c
+            if key_less(keys, b, a, axis):
+                b = a
+        pivot = b
+        s = left
+        t = right
+        while s <= t:
+            while key_less(keys, order[s], pivot, axis):
+                s += 1
+            while key_less(keys, pivot, order[t], axis):
+                t -= 1
+            if s <= t:
+                tmp = order[s]
+                order[s] = order[t]
+                order[t] = tmp
+                s += 1
+                t -= 1
+        if kth <= t:
+            right = t
+        elif kth >= s:
+            left = s
+        else:
+            break
+
+
+@njit(cache=True, fastmath=FASTMATH, error_model="numpy", parallel=True)
+def node_geometry(positions, areas, order, start, stop, out):
+    """Per node q (float64 columns of ``out``, shape (m, 6)): 0-2 centre
+    ``sum A c / sum A``, 3 radius ``max |c_j - centre| + sqrt(A_j / pi)`` (disks included,
+    so every disk of the node lies inside the sphere), 4 area ``sum A``, 5 the largest
+    disk area (it bounds the node's near-field reach). Each node reads its own emitter
+    range: O(k log k) in all; call again after the positions move (a refit keeps
+    ``order``, ``start``, ``stop``).
+
+    Parameters
+    ----------
+    positions : (n, 3) float64
+    areas : (n,) float64
+    order : (k,) int64
+        Vertex of each emitter in tree order.
+    start, stop : (m,) int64
+    out : (m, 6) float64
+    """
+    for q in prange(start.shape[0]):
+        total = 0.0
+        biggest = 0.0
+        sx = 0.0
+        sy = 0.0
+        sz = 0.0
+        for t in range(start[q], stop[q]):
+            j = order[t]
+            a = areas[j]
+            total += a
+            biggest = max(biggest, a)
+            sx += a * positions[j, 0]
+            sy += a * positions[j, 1]
+            sz += a * positions[j, 2]
+        cx = sx / total
+        cy = sy / total
+        cz = sz / total
+        rb = 0.0
+        for t in range(start[q], stop[q]):
+            j = order[t]
+            dx = positions[j, 0] - cx
+            dy = positions[j, 1] - cy
+            dz = positions[j, 2] - cz
+            rb = max(rb, np.sqrt(dx * dx + dy * dy + dz * dz) + np.sqrt(areas[j] / np.pi))
+        out[q, 0] = cx
+        out[q, 1] = cy
+        out[q, 2] = cz
+        out[q, 3] = rb
+        out[q, 4] = total
+        out[q, 5] = biggest
+
+
+@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+def spread_factor(area, txx, tyy, tzz, txy, txz, tyz):
+    """kappa in [sqrt(3)/2, 1] from the normal moments: with ``rho = tr(T^2) / A_w^2`` in
+    [1/3, 1] (1: normals along one axis; 1/3: isotropic),
+    ``kappa = sqrt(3)/2 + (1 - sqrt(3)/2) (3 rho - 1) / 2``. Exact for one axis, for
+    isotropic normals, and (to 3 digits) for normals on a circle (a cylinder).
+    """
+    if area <= 0.0:
+        return 1.0
+    tt = txx * txx + tyy * tyy + tzz * tzz + 2.0 * (txy * txy + txz * txz + tyz * tyz)
+    rho = min(max(tt / (area * area), 1.0 / 3.0), 1.0)
+    base = 0.5 * np.sqrt(3.0)
+    return base + (1.0 - base) * 0.5 * (3.0 * rho - 1.0)
+
+
+@njit(cache=True, fastmath=FASTMATH, error_model="numpy")
+def refit_nodes(emitters, skip, start, stop, nodes):
+    """Per-pass node columns from the emitters' weights: ``A_w = sum w A``,
+    ``N = sum w A m`` and ``kappa^2 T`` with ``T = sum w A m m^T``.
+
+    Bottom-up in reverse preorder (children before parents: O(m)) in float64; a leaf
+    sums its emitters, an internal node q adds its children q + 1 and skip[q + 1]. The
+    moments are then multiplied by ``kappa^2`` (:func:`spread_factor`) and stored as
+    float32 in every per-pass column of every node.
+
+    Parameters
+    ----------
+    emitters : (k, EMITTER_COLS) float32
+    skip, start, stop : (m,) int64
+    nodes : (m, NODE_COLS) float32
+        Geometry columns are left as they are.
+    """
+    m = skip.shape[0]
+    mom = np.zeros((m, MOMENT_COLS))
+    for q in range(m - 1, -1, -1):
+        if skip[q] == q + 1:
+            for j in range(start[q], stop[q]):
+                wa = np.float64(emitters[j, E_WEIGHT]) * np.float64(emitters[j, E_AREA])
+                mx = np.float64(emitters[j, E_MX])
+                my = np.float64(emitters[j, E_MY])
+                mz = np.float64(emitters[j, E_MZ])
+                mom[q, 0] += wa
+                mom[q, 1] += wa * mx
+                mom[q, 2] += wa * my
+                mom[q, 3] += wa * mz
+                mom[q, 4] += wa * mx * mx
+                mom[q, 5] += wa * my * my
+                mom[q, 6] += wa * mz * mz
+                mom[q, 7] += wa * mx * my
+                mom[q, 8] += wa * mx * mz
+                mom[q, 9] += wa * my * mz
+        else:
+            left = q + 1
+            right = skip[left]
+            for c in range(MOMENT_COLS):
+                mom[q, c] = mom[left, c] + mom[right, c]
+    for q in range(m):
+        kappa = spread_factor(
+            mom[q, 0], mom[q, 4], mom[q, 5], mom[q, 6], mom[q, 7], mom[q, 8], mom[q, 9]
+        )
+        k2 = kappa * kappa
+        nodes[q, N_WAREA] = mom[q, 0]
+        nodes[q, N_NX] = mom[q, 1]
+        nodes[q, N_NY] = mom[q, 2]
+        nodes[q, N_NZ] = mom[q, 3]
+        for c in range(6):
+            nodes[q, N_TXX + c] = k2 * mom[q, 4 + c]
