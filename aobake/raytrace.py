@@ -149,25 +149,7 @@ def shell_labels(surface: Surface) -> np.ndarray:
     return _topo.shells(surface.faces, order, run_start, np.ascontiguousarray(surface.normals))
 
 
-class _VertexFaces:
-    """Triangles around each vertex (CSR), built once and only when a contact is found."""
-
-    def __init__(self, faces: IndexArray, n: int):
-        flat = faces.reshape(-1)
-        self.order = np.argsort(flat, kind="stable")
-        self.start = np.searchsorted(flat[self.order], np.arange(n + 1))
-
-    def corners(self, faces: IndexArray, vertices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(owner, corners): for each triangle around each of ``vertices``, the index
-        into ``vertices`` it belongs to and its three vertex ids."""
-        starts, stops = self.start[vertices], self.start[vertices + 1]
-        counts = stops - starts
-        owner = np.repeat(np.arange(vertices.size), counts)
-        within = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
-        return owner, faces[self.order[np.repeat(starts, counts) + within] // 3]
-
-
-def _own_side(surface: Surface, around: _VertexFaces, vertices, points, planes) -> np.ndarray:
+def _own_side(surface: Surface, vertices, points, planes) -> np.ndarray:
     """Which side of a plane a vertex's own triangles lie on.
 
     For each vertex v (with plane point x and unit normal m): the sign of the mean
@@ -176,7 +158,8 @@ def _own_side(surface: Surface, around: _VertexFaces, vertices, points, planes) 
     for a two-sided sheet, or balanced).
     """
     pos = surface.positions
-    owner, corners = around.corners(surface.faces, vertices)
+    owner, face = _topo.faces_around(surface.faces, vertices, surface.n_vertices)
+    corners = surface.faces[face]  # (c, 3) vertex ids of each triangle around v
     d = np.einsum("ckj,cj->ck", pos[corners] - points[owner][:, None, :], planes[owner])
     d[corners == vertices[owner][:, None]] = 0.0
     extent = np.abs(pos[corners] - pos[vertices[owner]][:, None, :]).max(axis=(1, 2))
@@ -235,15 +218,25 @@ def contact_origins(
     reach = offsets + np.maximum((1.0 + CONTACT_PROBE_SLACK) * offsets, CONTACT_DEPTH * edges)
     candidates = n.any(axis=1) & (offsets > 0)
     moved = np.zeros(surface.n_vertices, dtype=bool)
-    around = None
+    face_order = np.argsort(group_of_face, kind="stable")
+    group_start = np.searchsorted(group_of_face[face_order], np.arange(n_groups + 1))
+    group_lo, group_hi = _topo.group_bounds(p, surface.faces, group_of_face, n_groups)
+    vertex_lo, vertex_hi = origins - reach[:, None], origins + reach[:, None]
     for g in range(n_groups):
-        group_faces = surface.faces[group_of_face == g]
-        used = np.unique(group_faces)
-        lo, hi = p[used].min(axis=0), p[used].max(axis=0)
-        near = ((origins >= lo - reach[:, None]) & (origins <= hi + reach[:, None])).all(axis=1)
+        near = (vertex_hi >= group_lo[g]).all(axis=1) & (vertex_lo <= group_hi[g]).all(axis=1)
         idx = np.flatnonzero(candidates & near & (vertex_group != g) & ~moved)
         if idx.size == 0:
             continue
+        # Only the group's triangles that the probes can reach go into its scene, so a
+        # large object resting on a floor costs a BVH over a few triangles, not all.
+        qlo, qhi = vertex_lo[idx].min(axis=0), vertex_hi[idx].max(axis=0)
+        ids = _topo.faces_in_box(
+            p, surface.faces, face_order[group_start[g] : group_start[g + 1]], qlo, qhi
+        )
+        group_faces = surface.faces[ids]
+        if group_faces.shape[0] == 0:
+            continue
+        used = np.unique(group_faces)
         local_faces = np.searchsorted(used, group_faces)
         other = Scene(p[used], local_faces, recentred=True)
         hit = other.intersect(
@@ -258,9 +251,7 @@ def contact_origins(
         rows, m = rows[ok], m[ok] / m_len[ok, None]
         v = idx[rows]
         x = origins[v] - hit["tfar"][rows, None].astype(np.float64) * n[v]
-        if around is None:
-            around = _VertexFaces(surface.faces, surface.n_vertices)
-        side = _own_side(surface, around, v, x + scene.center, m)
+        side = _own_side(surface, v, x + scene.center, m)
         keep = side != 0
         v, x, m = v[keep], x[keep], m[keep] * side[keep, None]  # m now points to the own side
         dot = np.einsum("ij,ij->i", n[v], m)

@@ -142,3 +142,64 @@ def longest_edges(positions, faces):
             if length > out[j]:
                 out[j] = length
     return out
+
+
+@njit(cache=True)
+def group_bounds(positions, faces, group_of_face, n_groups):
+    """(G, 3) lower and upper corners of the triangles of each group."""
+    lo = np.full((n_groups, 3), np.inf)
+    hi = np.full((n_groups, 3), -np.inf)
+    for f in range(faces.shape[0]):
+        g = group_of_face[f]
+        for k in range(3):
+            v = faces[f, k]
+            for c in range(3):
+                x = positions[v, c]
+                if x < lo[g, c]:
+                    lo[g, c] = x
+                if x > hi[g, c]:
+                    hi[g, c] = x
+    return lo, hi
+
+
+@njit(cache=True)
+def faces_in_box(positions, faces, face_ids, lo, hi):
+    """Those of ``face_ids`` whose bounding box meets the box [lo, hi]."""
+    keep = np.zeros(face_ids.shape[0], dtype=np.bool_)
+    for a in range(face_ids.shape[0]):
+        f = face_ids[a]
+        ok = True
+        for c in range(3):
+            x0 = positions[faces[f, 0], c]
+            x1 = positions[faces[f, 1], c]
+            x2 = positions[faces[f, 2], c]
+            if max(x0, max(x1, x2)) < lo[c] or min(x0, min(x1, x2)) > hi[c]:
+                ok = False
+                break
+        keep[a] = ok
+    return face_ids[keep]
+
+
+@njit(cache=True)
+def faces_around(faces, vertices, n):
+    """(owner, face) pairs: every triangle around each of ``vertices`` (one pass over
+    the faces; ``owner`` indexes ``vertices``)."""
+    slot = np.full(n, -1, dtype=np.int64)
+    for a in range(vertices.shape[0]):
+        slot[vertices[a]] = a
+    count = 0
+    for f in range(faces.shape[0]):
+        for k in range(3):
+            if slot[faces[f, k]] >= 0:
+                count += 1
+    owner = np.zeros(count, dtype=np.int64)
+    face = np.zeros(count, dtype=np.int64)
+    i = 0
+    for f in range(faces.shape[0]):
+        for k in range(3):
+            a = slot[faces[f, k]]
+            if a >= 0:
+                owner[i] = a
+                face[i] = f
+                i += 1
+    return owner, face
