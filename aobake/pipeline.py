@@ -309,9 +309,10 @@ def sweep_file(
     from .io_common import atomic_write
 
     out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    check_output_dir(out_dir / "sweep.csv")
+    # the directory may exist (the reference cache lives there); its parent must
+    check_output_dir(out_dir / "sweep.csv" if out_dir.is_dir() else out_dir)
     surface = as_surface(source)
+    out_dir.mkdir(exist_ok=True)
     digest = hashlib.sha256()
     digest.update(np.ascontiguousarray(surface.positions).tobytes())
     digest.update(np.ascontiguousarray(surface.faces).tobytes())
