@@ -16,10 +16,10 @@ STEMS    := $(basename $(notdir $(INPUTS)))
 OUT_PLY  := $(STEMS:%=$(OUT)/%.ply)
 OUT_USD  := $(STEMS:%=$(OUT)/%.usda)
 
-.PHONY: help venv bake batch test bench report lint coverage clean
+.PHONY: help venv bake batch test bench bench-deps bench-embree bench-bunnell bench-field report lint coverage clean
 
 help: ## Show this help
-	@awk 'BEGIN {FS = ":.*?## "} /^[a-zA-Z_-]+:.*?## / {printf "  %-10s %s\n", $$1, $$2}' $(MAKEFILE_LIST)
+	@awk 'BEGIN {FS = ":.*?## "} /^[a-zA-Z_-]+:.*?## / {printf "  %-14s %s\n", $$1, $$2}' $(MAKEFILE_LIST)
 
 venv: $(STAMP) ## Create .venv and install aobake with its test extras
 
@@ -51,9 +51,21 @@ out/sphere_on_ground.ply out/sphere_on_ground.usda out/box_stack.ply out/box_sta
 test: $(STAMP) ## Run the test suite
 	$(PY) -m pytest -q
 
-bench: $(STAMP) ## Benchmarks (prints ratios measured in one run); installs libigl for the peer comparison
-	$(PY) -m pip install --quiet '.[bench]' || echo "libigl not installable: peer rows skipped"
+bench: bench-embree bench-bunnell bench-field ## All benchmarks (ratios measured in one run; ~30 min on 2 cores)
+
+bench-deps: $(STAMP)
+	$(PY) -m pip install --quiet -e '.[bench]' || echo "libigl not installable: peer rows skipped"
+
+bench-embree: bench-deps ## Embree reference: closed forms, adaptivity, vs bare embreex and libigl
+	$(PY) bench/accuracy_embree.py
+	$(PY) bench/adaptive_embree.py
 	$(PY) bench/bench_embree.py
+
+bench-bunnell: $(STAMP) ## Bunnell disks: error and time per pass against Embree
+	$(PY) bench/bench_bunnell.py
+
+bench-field: $(STAMP) ## AO fields: fit time, size, error, evaluation throughput
+	$(PY) bench/bench_field.py
 
 report: $(STAMP) ## Sweep accuracy vs time on the bundled meshes into report/ (tables + pareto.png)
 	@mkdir -p report; for f in $(wildcard data/*.ply); do \
@@ -63,7 +75,8 @@ report: $(STAMP) ## Sweep accuracy vs time on the bundled meshes into report/ (t
 	  cat report/$$stem.md; \
 	done
 
-lint: $(STAMP) ## ruff check (if installed)
+lint: $(STAMP) ## ruff check (installs ruff into .venv)
+	$(PY) -m pip install --quiet ruff
 	$(PY) -m ruff check aobake tests bench
 
 coverage: $(STAMP) ## Tests with the JIT off so kernel bodies are measured
