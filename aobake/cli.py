@@ -341,13 +341,17 @@ def compare(reference, candidate, threshold, worst, json_path, plot_path, render
 )
 @click.option("--repeats", type=click.IntRange(min=1), default=3, show_default=True, help="Time each setting this often (best).")
 @click.option("--no-plot", is_flag=True, help="Skip pareto.png (no matplotlib needed).")
+@click.option(
+    "--no-fields", is_flag=True, help="Skip the AO-field rows (MESH as an occluder over a ground grid)."
+)
 @common_options
-def sweep(mesh, out_dir, reference_rays, repeats, no_plot, seed, threads, quiet):
+def sweep(mesh, out_dir, reference_rays, repeats, no_plot, no_fields, seed, threads, quiet):
     """What accuracy costs in time: bake MESH over a grid of methods and settings.
 
     Each setting is timed and compared with a high-ray Embree reference (cached in
-    OUTPUT). Writes sweep.csv, sweep.json and pareto.png (error against seconds,
-    log-log, Pareto front marked) into OUTPUT and prints the table.
+    OUTPUT). Rows marked "(ground)" use MESH as a rigid occluder on a ground grid and
+    score AO fields on the ground. Writes sweep.csv, sweep.json and pareto.png (error
+    against seconds, log-log, Pareto fronts marked) into OUTPUT and prints the table.
     """
     from .pipeline import sweep_file
     from .progress import make_progress
@@ -364,6 +368,7 @@ def sweep(mesh, out_dir, reference_rays, repeats, no_plot, seed, threads, quiet)
         seed=seed,
         threads=threads,
         repeats=repeats,
+        fields=not no_fields,
         plot=not no_plot,
         progress=make_progress(quiet),
         on_row=on_row,

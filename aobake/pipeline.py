@@ -289,12 +289,17 @@ def sweep_file(
     threads: int | None = None,
     repeats: int = 1,
     methods: Sequence[str] | None = None,
+    fields: bool = True,
     plot: bool = True,
     progress: Progress | None = None,
     on_row=None,
 ):
     """Bake ``source`` over the default grid of settings and score each against a
     high-ray Embree reference; write ``sweep.csv``, ``sweep.json`` and ``pareto.png``.
+
+    With ``fields``, the mesh is also used as a rigid occluder resting on a ground grid:
+    AO fields of several resolutions are fitted (their time is the fit) and the AO they
+    cast on the ground is scored against Embree AO of the same scene (rows "field").
 
     The reference is cached in ``out_dir`` under a name keyed by the mesh's content,
     ``reference_rays`` and ``seed``, so repeated sweeps skip it.
@@ -337,6 +342,8 @@ def sweep_file(
 
     grid = sweep.default_grid(methods or METHODS)
     rows = sweep.run_sweep(compute, reference, grid, repeats=repeats, on_row=on_row)
+    if fields:  # a different scene (the ground under the mesh): its own Pareto front
+        rows = rows + _field_sweep(surface, out_dir, key, reference_rays, seed, threads, repeats, on_row)
     meta = {
         "source": Path(str(source)).name,
         "n_vertices": surface.n_vertices,
@@ -508,3 +515,57 @@ def _apply_fields(surface: Surface, ao: AOArray, placed: list, threads) -> tuple
         threads=threads,
     )
     return np.asarray(ao) * result.ao, result.skipped
+
+
+def _field_sweep(surface, out_dir, key, reference_rays, seed, threads, repeats, on_row):
+    """Rows for AO fields: ``surface`` as a rigid occluder on a ground grid (3 bounding
+    radii each way, at its lowest point along the up axis: the file's, else Y), scored
+    on the ground vertices against Embree AO of occluder + ground."""
+    from . import sweep
+    from .field import field_ao, fit_field
+    from .io_common import atomic_write
+    from .mesh import surface_from_arrays
+    from .raytrace import embree_ao
+
+    up = 1 if (surface.metadata.get("up_axis") or "Y").upper() == "Y" else 2
+    lo, hi = surface.positions.min(axis=0), surface.positions.max(axis=0)
+    centre = 0.5 * (lo + hi)
+    radius = 0.5 * float(np.linalg.norm(hi - lo))
+    cells = 64
+    t = np.linspace(-1.5 * radius, 1.5 * radius, cells + 1)
+    u, v = np.meshgrid(t, t, indexing="ij")
+    axes = [a for a in range(3) if a != up]
+    ground = np.zeros((u.size, 3))
+    ground[:, axes[0]] = centre[axes[0]] + u.ravel()
+    ground[:, axes[1]] = centre[axes[1]] + v.ravel()
+    ground[:, up] = lo[up]
+    i, j = np.meshgrid(np.arange(cells), np.arange(cells), indexing="ij")
+    a = (i * (cells + 1) + j).ravel()
+    quads = np.c_[a, a + cells + 1, a + cells + 2, a + 1]
+    tri = np.vstack([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]])
+    normal = np.zeros(3)
+    normal[up] = 1.0
+    g_normals = np.tile(normal, (len(ground), 1))
+    # orient the triangles to face up
+    e = np.cross(ground[tri[:, 1]] - ground[tri[:, 0]], ground[tri[:, 2]] - ground[tri[:, 0]])
+    if (e @ normal).mean() < 0:
+        tri = tri[:, ::-1]
+    n = surface.n_vertices
+    scene = surface_from_arrays(
+        np.vstack([surface.positions, ground]),
+        np.vstack([surface.faces, tri + n]),
+        np.vstack([surface.normals, g_normals]),
+    )
+    cache = out_dir / f"reference_ground_{key}_rays{reference_rays}_seed{seed}.npy"
+    if cache.exists():
+        reference = np.load(cache, allow_pickle=False)
+    else:
+        reference = embree_ao(scene, n_rays=reference_rays, seed=seed + 1, threads=threads).ao[n:]
+        with atomic_write(cache) as tmp:
+            np.save(tmp, reference)
+
+    def compute(method, options):
+        f = fit_field(surface, seed=seed, threads=threads, **options)
+        return field_ao(f, ground, g_normals, threads=threads), 0
+
+    return sweep.run_sweep(compute, reference, sweep.field_grid(), repeats=repeats, on_row=on_row)

@@ -50,7 +50,19 @@ def test_cli_sweep_writes_table_csv_json_png_and_caches(tmp_path, monkeypatch):
     trimesh.Trimesh(s.positions, s.faces, process=False).export(src)
     out = tmp_path / "sweep"
     r = CliRunner().invoke(
-        main, ["sweep", str(src), "-o", str(out), "--reference-rays", "256", "--repeats", "1", "-q"]
+        main,
+        [
+            "sweep",
+            str(src),
+            "-o",
+            str(out),
+            "--reference-rays",
+            "256",
+            "--repeats",
+            "1",
+            "-q",
+            "--no-fields",
+        ],
     )
     assert r.exit_code == 0, r.output
     assert r.stdout.startswith("| method | settings |")
@@ -85,7 +97,34 @@ def test_cli_sweep_writes_table_csv_json_png_and_caches(tmp_path, monkeypatch):
             "1",
             "-q",
             "--no-plot",
+            "--no-fields",
         ],
     )
     assert r2.exit_code == 0
     assert calls and (256, 1) not in calls  # the reference uses seed + 1
+
+
+def test_sweep_field_rows_score_the_ground(tmp_path, monkeypatch):
+    import aobake.sweep as sweep_mod
+
+    monkeypatch.setattr(
+        sweep_mod,
+        "field_grid",
+        lambda: [
+            ("field", "N=2", {"resolution": 2, "radial_samples": 4, "raster_size": 8}),
+            ("field", "N=6", {"resolution": 6, "radial_samples": 8, "raster_size": 16}),
+        ],
+    )
+    s = shapes.sphere(0.5, 2)
+    src = tmp_path / "ball.ply"
+    trimesh.Trimesh(s.positions, s.faces, process=False).export(src)
+    from aobake.pipeline import sweep_file
+
+    rows = sweep_file(
+        src, tmp_path / "sw", reference_rays=256, methods=("embree",), plot=True, repeats=1
+    )
+    field = [r for r in rows if r.method == "field"]
+    assert [r.label for r in field] == ["N=2", "N=6"]
+    # a finer field is closer to ray-traced AO on the ground, and both are informative
+    assert field[1].rmse < field[0].rmse < 0.2
+    assert (tmp_path / "sw" / "pareto.png").exists()
