@@ -88,44 +88,6 @@ def _relabel(parent):
 
 
 @njit(cache=True)
-def connected_components(faces, n):
-    """Label the vertices 0..n-1 by the connected component of the face graph.
-
-    Parameters
-    ----------
-    faces : (m, 3) int64
-    n : int
-
-    Returns
-    -------
-    labels : (n,) int64
-        Component ids 0..C-1, numbered by first appearance; a vertex in no face is a
-        component of its own.
-    """
-    parent = np.arange(n)
-    for f in range(faces.shape[0]):
-        a = _find(parent, faces[f, 0])
-        for k in range(1, 3):
-            b = _find(parent, faces[f, k])
-            if a != b:
-                if a < b:
-                    parent[b] = a
-                else:
-                    parent[a] = b
-                    a = b
-    labels = np.full(n, -1, dtype=np.int64)
-    root_label = np.full(n, -1, dtype=np.int64)
-    count = 0
-    for i in range(n):
-        r = _find(parent, i)
-        if root_label[r] < 0:
-            root_label[r] = count
-            count += 1
-        labels[i] = root_label[r]
-    return labels
-
-
-@njit(cache=True)
 def longest_edges(positions, faces):
     """(n,) float64: the longest edge touching each vertex (0 for unreferenced ones)."""
     out = np.zeros(positions.shape[0])
