@@ -19,13 +19,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from ._types import AOArray, FloatArray, IndexArray
-from .constants import NEAR_OFFSET_REL
+from .constants import NEAR_OFFSET_REL, PASS_RADII
 from .errors import NumericalError
 from .hierarchy import ClusterTree, pack_nodes, refit_tree, tree_keys
 from .hierarchy import build_tree as _build_tree
 from .kernels import bunnell as _k
 from .kernels import hierarchy as _h
 from .kernels import polygon as _poly
+from .kernels import treepass as _tp
 from .mesh import Surface
 from .progress import NullProgress, Progress
 
@@ -48,17 +49,26 @@ SIDES = ("max", "front")
 
 # Opening parameter: a cluster of area A and bounding radius b is used as one emitter when
 # every receiver of a bucket is farther than sqrt(theta * max(A, pi b^2)) from its centre.
-# Measured in bench/bench_bunnell.py against the exact sum: see the README table.
+# Measured in bench/bench_bunnell.py (700k vertices): RMSE against the exact sum 0.017 /
+# 0.009 / 0.004 for theta 2 / 4 / 8 at 0.6x / 1x / 1.3x the time of 4; against the
+# reference theta 2 doubles the error on facing plates (0.018 vs 0.007), 8 gains nothing.
 DEFAULT_THETA = 4.0
 # Near field: disks closer than sqrt(NEAR * A) to the receiver are replaced by the exact
-# form factor of their barycentric cells. Measured in bench/bench_bunnell.py.
+# form factor of their barycentric cells. Measured in bench/bench_bunnell.py: near 1
+# leaves contact errors (sphere on ground 0.046 vs 0.032 RMSE), near 16 gains <= 0.001
+# for 1.6x the time.
 DEFAULT_NEAR = 4.0
-# Passes k >= 2 weight each disk by 1 - DAMPING * A_{k-1} (cells keep weight 1). Bunnell's
-# weight 1 - A (DAMPING = 1) collapses where pass 1 saturates; measured in
-# bench/bench_bunnell.py (section "passes"), 0.3 was the best of 0.3, 0.5, 0.7, 1.
-DEFAULT_DAMPING = 0.3
-# Emitters per leaf (and receivers per bucket): 16 was fastest on the bench scenes.
-DEFAULT_LEAF_SIZE = 16
+# Passes k >= 2 weight a disk at distance r from the receiver by 1 - DAMPING * A_{k-1}(j; R)
+# with A(j; R) its occlusion by geometry closer than R = PASS_REACH * r to it (cells keep
+# weight 1). Bunnell's weight (PASS_REACH = inf: all of A_{k-1}) collapses on single
+# layers: facing plates, an object's shadow on the floor. Measured in
+# bench/bench_bunnell.py (section 1): see the README table.
+DEFAULT_DAMPING = 1.0
+DEFAULT_PASS_REACH = 0.5
+# Emitters per leaf (and receivers per bucket): measured in bench/bench_bunnell.py (section
+# 2): 16, 32 and 64 cost the same CPU time per pass at 700k vertices (+-3%); 32 and 64 were
+# more accurate than 16 (8 was slower).
+DEFAULT_LEAF_SIZE = 32
 # Buckets per kernel call: only for progress reports and Ctrl-C latency.
 CHUNK_BUCKETS = 1 << 12
 
@@ -180,16 +190,34 @@ def build_tree(elements: DiskElements, *, leaf_size: int = DEFAULT_LEAF_SIZE) ->
 
 
 class _Pass:
-    """Kernel inputs of one (elements, tree, options) set, reused by every pass."""
+    """Kernel inputs of one (elements, tree, options) set, reused by every pass.
+
+    ``pass_reach``: weight levels for passes >= 2 (see :func:`occlusion_passes`).
+    """
 
     def __init__(
-        self, elements: DiskElements, tree: ClusterTree | None, theta, near, code, reach, inner=None
+        self,
+        elements: DiskElements,
+        tree: ClusterTree | None,
+        theta,
+        near,
+        code,
+        reach,
+        inner=None,
+        pass_reach=DEFAULT_PASS_REACH,
     ):
         self.elements = elements
         self.tree = tree
-        self.options = (code, reach, near)
+        bin_r2 = np.asarray(PASS_RADII, dtype=np.float64) ** 2
+        with np.errstate(divide="ignore"):
+            weight_r2 = np.ascontiguousarray(bin_r2 / pass_reach**2)
+        self.options = (code, reach, near, False, bin_r2, weight_r2, False)
         inner = np.zeros(elements.n_vertices) if inner is None else inner
-        self.receivers = (elements.points, elements.normals, np.ascontiguousarray(inner, dtype=np.float64))
+        self.receivers = (
+            elements.points,
+            elements.normals,
+            np.ascontiguousarray(inner, dtype=np.float64),
+        )
         if tree is None:
             return
         import numba
@@ -199,12 +227,14 @@ class _Pass:
         self.rows[:, _h.E_X : _h.E_Z + 1] = elements.positions[order]
         self.rows[:, _h.E_MX : _h.E_MZ + 1] = elements.normals[order]
         self.rows[:, _h.E_AREA] = elements.areas[order]
+        self.weights = np.ones((order.shape[0], _k.N_LEVELS), dtype=np.float32)
         self.nodes = pack_nodes(tree, theta=theta, near=near)
-        self.tree_args = (tree.skip, tree.start, tree.stop, self.nodes)
-        self.emitters = (self.rows, order)
+        self.moments = np.zeros((tree.n_nodes, _k.N_LEVELS, _h.MOMENT_COLS), dtype=np.float32)
+        self.tree_args = (tree.skip, tree.start, tree.stop, self.nodes, self.moments)
+        self.emitters = (self.rows, order, self.weights)
         recv_order, bucket_start = receiver_buckets(elements, tree)
         bounds = np.zeros((bucket_start.shape[0] - 1, 5))
-        _k.bucket_bounds(elements.points, self.receivers[2], recv_order, bucket_start, bounds)
+        _tp.bucket_bounds(elements.points, self.receivers[2], recv_order, bucket_start, bounds)
         slots = numba.config.NUMBA_NUM_THREADS
         k, m = order.shape[0], tree.n_nodes
         self.bucket_start = bucket_start
@@ -212,43 +242,74 @@ class _Pass:
             recv_order,
             bucket_start,
             bounds,
-            np.empty((slots, _k.NEAR_ROWS, k), dtype=np.float32),
+            np.empty((slots, _tp.near_rows(_k.N_LEVELS), k), dtype=np.float32),
             np.empty((slots, 2, k), dtype=np.int64),
-            np.empty((slots, _k.FAR_ROWS, m), dtype=np.float32),
+            np.empty((slots, _tp.FAR_ROWS, m), dtype=np.float32),
         )
 
-    def sums(self, weights: FloatArray, progress: Progress, cell_weights=None) -> FloatArray:
-        """(n, 2) unsaturated (front, back) sums with per-vertex emitter weights (disks)
-        and cell weights (near field; default: the same)."""
+    def sums(
+        self,
+        weights: FloatArray,
+        progress: Progress,
+        cell_weights=None,
+        binned: bool = False,
+        cache_mode: int = 0,
+    ) -> FloatArray:
+        """(n, 2, N_BINS) unsaturated (front, back) sums, cumulative by distance when
+        ``binned`` (else only the last bin, the total).
+
+        ``weights``: (n,) per-vertex disk weights, or (n, N_LEVELS) per weight level;
+        ``cell_weights``: (n,) near-field cell weights (default: the level-0 weights).
+        ``cache_mode`` (tree only): 1 keeps each receiver's cell sums, 2 reuses them (the
+        cell weights must not have changed), 0 neither.
+        """
         e = self.elements
-        cell_weights = weights if cell_weights is None else cell_weights
-        out = np.zeros((e.n_vertices, 2))
+        n = e.n_vertices
+        weights = np.asarray(weights, dtype=np.float64)
+        if weights.ndim == 1:
+            weights = np.repeat(weights[:, None], _k.N_LEVELS, axis=1)
+        weights = np.ascontiguousarray(weights)
+        cell_weights = np.ascontiguousarray(weights[:, 0] if cell_weights is None else cell_weights)
+        leveled = bool(np.any(weights != weights[:, :1]))
+        options = self.options[:3] + (bool(binned),) + self.options[4:6] + (leveled,)
+        out = np.zeros((n, 2, _k.N_BINS))
         if self.tree is None:
             disks = (e.positions, e.normals, e.areas, weights)
             cells = (e.corner_start, e.corners, cell_weights)
-            everyone = np.arange(e.n_vertices, dtype=np.int64)
+            everyone = np.arange(n, dtype=np.int64)
             step = CHUNK_BUCKETS * DEFAULT_LEAF_SIZE
-            for lo in range(0, e.n_vertices, step):
+            for lo in range(0, n, step):
                 chunk = everyone[lo : lo + step]
                 _k.brute_force_pass(
-                    disks, cells, e.emitter_index, self.receivers, chunk, self.options, out
+                    disks, cells, e.emitter_index, self.receivers, chunk, options, out
                 )
                 progress.advance(chunk.shape[0])
             return out
-        self.rows[:, _h.E_WEIGHT] = weights[self.tree.order]
-        _h.refit_nodes(self.rows, self.tree.skip, self.tree.start, self.tree.stop, self.nodes)
-        near_field = (e.positions, cell_weights, e.corner_start, e.corners)
+        self.weights[:] = weights[self.tree.order]
+        _h.refit_nodes(
+            self.rows,
+            self.weights,
+            self.tree.skip,
+            self.tree.start,
+            self.tree.stop,
+            self.nodes,
+            self.moments,
+        )
+        if cache_mode and not hasattr(self, "cache"):
+            self.cache = np.zeros((n, 2, _k.N_BINS))
+        cache = getattr(self, "cache", np.zeros((0, 2, _k.N_BINS)))
+        near_field = (e.positions, cell_weights, e.corner_start, e.corners, cache, int(cache_mode))
         n_buckets = self.bucket_start.shape[0] - 1
         for b0 in range(0, n_buckets, CHUNK_BUCKETS):
             b1 = min(b0 + CHUNK_BUCKETS, n_buckets)
-            _k.hierarchy_pass(
+            _tp.hierarchy_pass(
                 self.tree_args,
                 self.emitters,
                 self.receivers,
                 near_field,
                 self.buckets,
                 (b0, b1),
-                self.options,
+                options,
                 out,
             )
             progress.advance(int(self.bucket_start[b1] - self.bucket_start[b0]))
@@ -292,6 +353,7 @@ def occlusion_passes(
     near: float = DEFAULT_NEAR,
     sides: str = "max",
     damping: float = DEFAULT_DAMPING,
+    pass_reach: float = DEFAULT_PASS_REACH,
     measure: str = "cosine",
     max_distance: float | None = None,
     inner: FloatArray | None = None,
@@ -306,9 +368,13 @@ def occlusion_passes(
     tree : ClusterTree or None
         ``None`` sums every disk exactly (brute force, O(n k): the test reference).
     passes : int
-        K >= 1. Pass 1 has ``w_j = 1``; pass k weights disk j by
-        ``w_j = 1 - damping A_{k-1}(j)``, so disks that are themselves in shadow cast
-        less (Bunnell's double-shadow removal); near-field cells keep weight 1.
+        K >= 1. Pass 1 has ``w_j = 1``; pass k weights disk j, at distance r from the
+        receiver, by ``w_j = 1 - damping A_{k-1}(j; pass_reach r)``: disks that are
+        themselves in shadow cast less (Bunnell's double-shadow removal), but only by
+        the geometry near them, which can stand between them and the receiver. The
+        occlusion of j by emitters closer than R is read off distance bins of the
+        previous pass (``PASS_RADII``: R is rounded down to a bin radius); near-field
+        cells keep weight 1.
     theta : float
         Opening parameter (> 0), ignored without a tree; see :func:`bunnell_ao`.
     near : float
@@ -316,7 +382,9 @@ def occlusion_passes(
     sides : {"max", "front"}
         ``"max"``: ``max(front, back)``; ``"front"``: front sums only.
     damping : float
-        In (0, 1]; 1 with ``near=0`` is Bunnell's published scheme.
+        In (0, 1]. ``damping=1, pass_reach=inf, near=0`` is Bunnell's published scheme.
+    pass_reach : float
+        > 0, or inf (weights from the whole previous pass, as published).
     measure : {"cosine", "uniform"}
     max_distance : float or None
         In mesh units; disks farther than this from the receiver are ignored.
@@ -339,6 +407,7 @@ def occlusion_passes(
     near = _check_near(near)
     _check_sides(sides)
     damping = _check_damping(damping)
+    pass_reach = _check_pass_reach(pass_reach)
     _check_threads(threads)
     progress = NullProgress() if progress is None else progress
     n = elements.n_vertices
@@ -348,20 +417,26 @@ def occlusion_passes(
         progress.advance(passes * n)
         progress.finish()
         return occlusion
-    weights = np.ones(n)
+    weights = np.ones((n, _k.N_LEVELS))
     cell_weights = np.ones(n)
     with numba_threads(threads), np.errstate(under="ignore"):
         if inner is not None:
             inner = np.asarray(inner, dtype=np.float64) / elements.scale
             if inner.shape != (n,) or not np.all(inner >= 0.0):
                 raise ValueError(f"inner must be ({n},) and >= 0")
-        job = _Pass(elements, tree, theta, near, code, reach, inner)
+        job = _Pass(elements, tree, theta, near, code, reach, inner, pass_reach)
         for k in range(passes):
-            if k > 0:
-                weights = 1.0 - damping * occlusion[k - 1]
-            sums = job.sums(weights, progress, cell_weights)
+            binned = k + 1 < passes  # the next pass needs occlusion by distance
+            # cells keep weight 1 in every pass: evaluate them once
+            cache_mode = 0 if passes == 1 else (1 if k == 0 else 2)
+            sums = job.sums(weights, progress, cell_weights, binned, cache_mode)
             _check_result(sums, "unsaturated occlusion sum", lower=0.0, upper=np.inf)
-            occlusion[k] = np.clip(combine_sides(sums, sides), 0.0, 1.0)
+            occlusion[k] = np.clip(combine_sides(sums[:, :, -1], sides), 0.0, 1.0)
+            if binned:
+                # A(j; R_b): occlusion by emitters closer than bin b's outer radius
+                for b in range(_k.N_BINS):
+                    a_b = np.clip(combine_sides(sums[:, :, b], sides), 0.0, 1.0)
+                    weights[:, b + 1] = 1.0 - damping * a_b
     progress.finish()
     return occlusion
 
@@ -420,11 +495,13 @@ def bunnell_ao(
     near: float = DEFAULT_NEAR,
     sides: str = "max",
     damping: float = DEFAULT_DAMPING,
+    pass_reach: float = DEFAULT_PASS_REACH,
     measure: str = "cosine",
     max_distance: float | None = None,
     combine: str = "last",
     exact: bool = False,
     leaf_size: int = DEFAULT_LEAF_SIZE,
+    tree: ClusterTree | None = None,
     threads: int | None = None,
     progress: Progress | None = None,
 ) -> AOArray:
@@ -449,9 +526,10 @@ def bunnell_ao(
     surface : Surface
         All parts form one scene and occlude each other.
     passes : int, optional
-        Number of passes K >= 1: pass k weights each disk by ``1 - damping A_{k-1}(j)``
-        (near-field cells keep weight 1). Default 1 (see bench/bench_bunnell.py for the
-        measurements).
+        Number of passes K >= 1: pass k weights each disk by its accessibility from the
+        geometry near it, ``1 - damping A_{k-1}(j; pass_reach r)`` (see
+        :func:`occlusion_passes`; near-field cells keep weight 1). Default 1 (see
+        bench/bench_bunnell.py for the measurements).
     theta : float, optional
         Opening parameter > 0: a cluster of summed area A and bounding radius b (disks
         included) is used as one emitter only when every receiver of a bucket is at
@@ -467,7 +545,9 @@ def bunnell_ao(
         How the front and back sums make the occlusion (:func:`combine_sides`):
         ``"max"`` (default) or ``"front"`` (front faces cast).
     damping : float, optional
-        Pass weight damping in (0, 1]; 1 (with ``near=0``) is Bunnell's scheme.
+        Pass weight damping in (0, 1].
+    pass_reach : float, optional
+        > 0; ``inf`` with ``damping=1`` and ``near=0`` is Bunnell's published scheme.
     measure : {"cosine", "uniform"}, optional
     max_distance : float or None, optional
         Ignore disks whose centre is farther than this (mesh units); None = unbounded.
@@ -479,6 +559,12 @@ def bunnell_ao(
         Sum every disk (O(n^2), no tree): the reference for the hierarchy.
     leaf_size : int, optional
         Maximum disks per tree leaf.
+    tree : ClusterTree or None, optional
+        For animation: the tree of an earlier frame of the same mesh (from
+        :func:`build_tree` on its :func:`build_elements`). It is refit to this frame's
+        positions (:func:`refit_tree`, no sort) instead of rebuilt; rebuilt anyway when
+        the set of casting disks changed. The result stays exact as theta grows; a
+        tree whose clusters the motion has scrambled is only slower.
     threads : int or None, optional
         numba threads for this call (restored afterwards).
     progress : Progress or None, optional
@@ -511,10 +597,14 @@ def bunnell_ao(
     passes = _check_int("passes", passes, 1)
     _check_combine(combine, passes)
     elements = build_elements(surface)
-    tree = None
+    given, tree = tree, None
     if not exact and elements.n_emitters > 0:
         _check_theta(theta)
-        tree = build_tree(elements, leaf_size=leaf_size)
+        same = given is not None and np.array_equal(np.sort(given.order), elements.emitter_index)
+        if same:
+            tree = refit_tree(given, elements.positions, elements.areas)
+        else:
+            tree = build_tree(elements, leaf_size=leaf_size)
     occlusion = occlusion_passes(
         elements,
         tree,
@@ -523,6 +613,7 @@ def bunnell_ao(
         near=near,
         sides=sides,
         damping=damping,
+        pass_reach=pass_reach,
         measure=measure,
         max_distance=max_distance,
         threads=threads,
@@ -606,6 +697,12 @@ def _check_damping(damping: float) -> float:
     if not _is_number(damping) or not (0.0 < damping <= 1.0):
         raise ValueError(f"damping must be in (0, 1], got {damping!r}")
     return float(damping)
+
+
+def _check_pass_reach(pass_reach: float) -> float:
+    if not _is_number(pass_reach) or not (pass_reach > 0.0):
+        raise ValueError(f"pass_reach must be > 0 (inf: Bunnell's weights), got {pass_reach!r}")
+    return float(pass_reach)
 
 
 def _check_near(near: float) -> float:

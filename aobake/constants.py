@@ -94,3 +94,10 @@ TREE_KEY_STEPS = 1 << 20
 # Pending-range stack of the iterative tree build. Median splits halve the range, so the
 # stack never holds more than ~log2(k) + 2 entries; 128 covers any k < 2**120.
 TREE_BUILD_STACK = 128
+
+# Passes >= 2 (aobake.bunnell): an emitter at distance r from a receiver is weighted by its
+# own accessibility from the geometry within PASS_REACH * r of it, read off distance bins
+# with these outer radii (normalised units: the scene's largest extent is 1). A factor of
+# 4 between bins was as accurate as 2 on the bench scenes at half the bins; the last
+# radius exceeds the normalised diagonal sqrt(3), so the last bin is "everything".
+PASS_RADII = (0.005, 0.02, 0.08, 0.32, 1.28, 5.12)

@@ -34,10 +34,10 @@ from .mesh import Surface, vertex_edge_lengths
 from .progress import NullProgress, Progress
 from .raytrace import MEASURES, Scene, contact_origins, ray_offsets
 
-# Rays per vertex: measured in bench/bench_bunnell.py (section "hybrid").
+# Rays per vertex and ray length in local edge lengths (the longest edge at the vertex):
+# bench/bench_bunnell.py (section 1) and the README. 16 rays match the cost of a disk
+# pass; reach 2 or 8 was no better than 4 on the bench scenes (8 spoils facing plates).
 DEFAULT_HYBRID_RAYS = 16
-# Ray length in local edge lengths (the longest edge at the vertex): measured in
-# bench/bench_bunnell.py (section "hybrid").
 DEFAULT_REACH = 4.0
 COMBINES = ("product", "sum", "max")
 

@@ -1,19 +1,23 @@
-"""Benchmark of the disk method (aobake.bunnell): time per pass and hierarchy error.
+"""Benchmark of the disk method (aobake.bunnell) and the hybrid (aobake.hybrid).
 
-Prints tables measured in one run (not a test; no assertions):
+Prints Markdown tables measured in one run (not a test; no assertions):
 
-1. hierarchy: for ~100k and ~700k vertex scenes (spheres on a ground grid), build time,
-   time of pass 1 and pass 2, and RMSE / p99 / max of pass-1 occlusion against the exact
-   O(n^2) sum on a random subset of receivers, for several theta;
-2. leaf size at the default theta (~100k scene);
+1. accuracy: for the bundled meshes (data/*.ply), four hard procedural scenes and the
+   ~700k-vertex scene of bench/common.py: RMSE / p99 / bias of ``ao`` against Embree
+   with 1024 rays, and time, for the published method (disks, front faces), each
+   fix on top of it, passes 1-4 and their combinations, a few theta and near-field
+   sizes, the hybrid, and Embree at 16 / 64 / 256 rays on the same mesh;
+2. speed on the ~700k scene: build, time per pass (wall and CPU) for theta / near /
+   leaf size, against the exact sum on a random subset of receivers;
 3. scaling: time per pass for n, 4n and 16n vertices (goal about n log n);
-4. against a ray-traced reference (Embree, 1024 rays; skipped if it does not import) on
-   small hard scenes: exact sums for passes 1-4 and the pass combinations, and the tree
-   at a few theta, to choose the defaults.
+4. the contenders on the big scene timed round-robin (best of 3 rounds), so that load from
+   other processes hits all of them alike.
 
-Usage: ``python bench/bench_bunnell.py [--quick] [--threads N] [--sections 1234]``.
-Timings are wall-clock seconds with the given numba thread count; the machine's load
-matters, so compare rows of one run, not runs of different days.
+References are cached in bench/results/ (Embree 1024 rays on 700k vertices takes minutes).
+
+Usage: ``python bench/bench_bunnell.py [--quick] [--threads N] [--sections 123]``.
+Timings are wall-clock seconds (best of ``--repeats``) with CPU seconds beside them:
+CPU / wall shows how many cores the run really had on a shared machine.
 """
 
 from __future__ import annotations
@@ -24,213 +28,252 @@ import time
 from pathlib import Path
 
 import numpy as np
-import trimesh
 
-from aobake import bunnell as B
-from aobake.kernels import bunnell as K
-from aobake.mesh import Part, Surface, surface_from_arrays
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE))
+sys.path.insert(0, str(HERE.parent / "tests"))
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+from aobake import bunnell as B  # noqa: E402
+from aobake.hybrid import hybrid_ao  # noqa: E402
+from aobake.kernels import bunnell as K  # noqa: E402
+from aobake.raytrace import embree_ao  # noqa: E402
 
+import common  # noqa: E402
 
-def grid(cells: int, half: float, z: float):
-    u = np.linspace(-half, half, cells + 1)
-    x, y = np.meshgrid(u, u, indexing="ij")
-    positions = np.c_[x.ravel(), y.ravel(), np.full(x.size, z)]
-    idx = np.arange(x.size).reshape(x.shape)
-    a, b, c, d = (
-        idx[:-1, :-1].ravel(),
-        idx[1:, :-1].ravel(),
-        idx[1:, 1:].ravel(),
-        idx[:-1, 1:].ravel(),
-    )
-    return positions, np.r_[np.c_[a, b, c], np.c_[a, c, d]].astype(np.int64)
+REF_RAYS = 1024
 
 
-def spheres_on_ground(cells: int, subdivisions: int, n_spheres: int) -> Surface:
-    """``n_spheres`` unit icospheres in a row, touching a ground grid of cells^2 quads."""
-    meshes = [grid(cells, 1.5 * n_spheres, -1.0)]
-    for k in range(n_spheres):
-        m = trimesh.creation.icosphere(subdivisions=subdivisions)
-        meshes.append(
-            (np.asarray(m.vertices) + [2.2 * (k - (n_spheres - 1) / 2), 0, 0], np.asarray(m.faces))
-        )
-    positions, faces, parts, v0, f0 = [], [], [], 0, 0
-    for k, (p, f) in enumerate(meshes):
-        positions.append(p)
-        faces.append(f + v0)
-        counts = np.full(len(f), 3, dtype=np.int64)
-        parts.append(
-            Part(f"part{k}", v0, v0 + len(p), f0, f0 + len(f), counts, f.reshape(-1).copy())
-        )
-        v0 += len(p)
-        f0 += len(f)
-    s = surface_from_arrays(np.concatenate(positions), np.concatenate(faces))
-    return Surface(s.positions, s.faces, s.normals, tuple(parts), "spheres_on_ground")
+def reference(name: str, surface) -> np.ndarray:
+    """Embree, 1024 rays, seed 0, cached by name and vertex count."""
+    path = common.RESULTS_DIR / f"bunnell_ref_{name}_{surface.n_vertices}_{REF_RAYS}.npy"
+    if path.exists():
+        return np.load(path)
+    ao = embree_ao(surface, n_rays=REF_RAYS, seed=0).ao
+    common.RESULTS_DIR.mkdir(parents=True, exist_ok=True)
+    np.save(path, ao)
+    return ao
 
 
-def timed(fn, *args, **kwargs):
-    t0 = time.perf_counter()
-    out = fn(*args, **kwargs)
-    return out, time.perf_counter() - t0
-
-
-def exact_subset(elements, subset, threads):
-    """Exact pass-1 occlusion at ``subset`` receivers (brute-force kernel on a chunk)."""
-    emitters = B.pack_emitters(elements, elements.emitter_index)
-    receivers = K.Receivers(elements.positions, elements.normals)
-    out = np.zeros(elements.n_vertices)
-    with B.numba_threads(threads):
-        K.brute_force_pass(emitters, receivers, subset, K.MEASURE_COSINE, np.inf, out)
-    return np.clip(out[subset], 0.0, 1.0)
-
-
-def errors(approx, exact):
-    e = np.abs(approx - exact)
-    return np.sqrt(np.mean(e**2)), np.quantile(e, 0.99), e.max()
-
-
-def warm_up(threads):
-    s = spheres_on_ground(8, 1, 1)
-    B.bunnell_ao(s, passes=2, threads=threads)
-    B.bunnell_ao(s, passes=1, exact=True, threads=threads)
-
-
-def section_hierarchy(scenes, thetas, threads, n_check):
-    print("\n## 1. Hierarchy: time per pass and error of pass 1 against the exact sum")
-    print(
-        f"(error on {n_check} random receivers; leaf size {B.DEFAULT_LEAF_SIZE}; "
-        f"{threads} threads)\n"
-    )
-    print("| n | build s | theta | pass 1 s | pass 2 s | RMSE | p99 | max |")
-    print("|---|---|---|---|---|---|---|---|")
-    for surface in scenes:
-        (elements, t_el) = timed(B.build_elements, surface)
-        tree, t_tree = timed(B.build_tree, elements)
-        subset = np.sort(
-            np.random.default_rng(0).choice(surface.n_vertices, n_check, replace=False)
-        )
-        exact = exact_subset(elements, subset, threads)
-        for theta in thetas:
-            occ1, t1 = timed(
-                B.occlusion_passes, elements, tree, passes=1, theta=theta, threads=threads
-            )
-            _, t12 = timed(
-                B.occlusion_passes, elements, tree, passes=2, theta=theta, threads=threads
-            )
-            rmse, p99, worst = errors(occ1[0][subset], exact)
-            print(
-                f"| {surface.n_vertices} | {t_el + t_tree:.2f} | {theta:g} | {t1:.2f} "
-                f"| {t12 - t1:.2f} "
-                f"| {rmse:.4f} | {p99:.4f} | {worst:.4f} |"
-            )
-
-
-def section_leaf(surface, leaf_sizes, threads, n_check):
-    print(f"\n## 2. Leaf size at theta = {B.DEFAULT_THETA:g} (n = {surface.n_vertices})\n")
-    print("| leaf | nodes | build s | pass 1 s | RMSE | max |")
-    print("|---|---|---|---|---|---|")
-    elements = B.build_elements(surface)
-    subset = np.sort(np.random.default_rng(0).choice(surface.n_vertices, n_check, replace=False))
-    exact = exact_subset(elements, subset, threads)
-    for leaf in leaf_sizes:
-        tree, t_tree = timed(B.build_tree, elements, leaf_size=leaf)
-        occ, t1 = timed(B.occlusion_passes, elements, tree, passes=1, threads=threads)
-        rmse, _, worst = errors(occ[0][subset], exact)
-        print(f"| {leaf} | {tree.n_nodes} | {t_tree:.2f} | {t1:.2f} | {rmse:.4f} | {worst:.4f} |")
-
-
-def section_scaling(configs, threads):
-    print(
-        f"\n## 3. Scaling at the defaults (theta = {B.DEFAULT_THETA:g}, "
-        f"leaf {B.DEFAULT_LEAF_SIZE})\n"
-    )
-    print(
-        "| n | build s | pass 1 s | us per vertex per thread | ratio to previous | n log n ratio |"
-    )
-    print("|---|---|---|---|---|---|")
-    prev = None
-    for cells, sub, k in configs:
-        surface = spheres_on_ground(cells, sub, k)
-        n = surface.n_vertices
-        elements, t_el = timed(B.build_elements, surface)
-        tree, t_tree = timed(B.build_tree, elements)
-        _, t1 = timed(B.occlusion_passes, elements, tree, passes=1, threads=threads)
-        ratio = "" if prev is None else f"{t1 / prev[1]:.2f}"
-        nlogn = "" if prev is None else f"{n * np.log(n) / (prev[0] * np.log(prev[0])):.2f}"
-        print(
-            f"| {n} | {t_el + t_tree:.2f} | {t1:.2f} | {1e6 * t1 * threads / n:.1f} "
-            f"| {ratio} | {nlogn} |"
-        )
-        prev = (n, t1)
-
-
-def section_reference(threads):
-    try:
-        from aobake.raytrace import embree_ao
-    except Exception as exc:  # noqa: BLE001 - optional section
-        print(f"\n## 4. skipped: Embree reference unavailable ({exc})")
-        return
+def scenes(quick: bool):
     import naive_bunnell as nb
 
-    scenes = {
+    out = {
         "sphere on plane": nb.sphere_on_plane(subdivisions=3, cells=40),
         "touching spheres": nb.touching_spheres(subdivisions=3),
         "facing plates": nb.facing_plates(cells=24, gap=0.5),
         "voxel sponge": nb.voxel_sponge(cells=4),
     }
-    print("\n## 4. Against the Embree reference (1024 rays): RMSE / bias of ao\n")
-    variants = ["K=1", "K=2", "K=3", "K=4", "bunnell K=2", "hoberock K=2", "hoberock K=3"]
-    thetas = [2.0, 4.0, 8.0]
-    header = variants + [f"tree K=1 theta {t:g}" for t in thetas]
-    print("| scene | n | " + " | ".join(header) + " |")
-    print("|---|---|" + "---|" * len(header))
-    for name, s in scenes.items():
-        ref = embree_ao(s, n_rays=1024, seed=0, threads=threads).ao
-        ok = s.normals.any(axis=1)
+    for s in common.data_scenes():
+        out[s.name + ".ply"] = s.surface
+    big, desc = common.spheres_on_ground(100_000 if quick else 700_000)
+    out[f"spheres on ground ({big.n_vertices // 1000}k)"] = big
+    return out, desc
+
+
+def scores(ao, ref, surface):
+    ok = surface.normals.any(axis=1)
+    e = ao[ok] - ref[ok]
+    return np.sqrt(np.mean(e**2)), np.quantile(np.abs(e), 0.99), e.mean()
+
+
+def run(fn, repeats):
+    """(result, best wall seconds, CPU seconds of that run)."""
+    best = None
+    for _ in range(repeats):
+        c0, t0 = time.process_time(), time.perf_counter()
+        out = fn()
+        t, c = time.perf_counter() - t0, time.process_time() - c0
+        if best is None or t < best[1]:
+            best = (out, t, c)
+    return best
+
+
+def variants(n_vertices: int):
+    """(label, callable(surface) -> ao, passes) of every row of the accuracy table."""
+    big = n_vertices > 50_000
+    rows = [
+        ("published: disks, front faces (near 0)", dict(near=0.0, sides="front")),
+        ("+ cells (near 4), front faces", dict(sides="front")),
+        ("default: + max(front, back)", dict()),
+    ]
+    if not big:
+        rows.append(("default, exact sum (no tree)", dict(exact=True)))
+    rows += [
+        ("disks only, max(front, back)", dict(near=0.0)),
+        ("near 1", dict(near=1.0)),
+        ("near 16", dict(near=16.0)),
+        ("theta 2", dict(theta=2.0)),
+        ("theta 8", dict(theta=8.0)),
+        ("passes 2", dict(passes=2)),
+        ("passes 3", dict(passes=3)),
+        ("passes 4", dict(passes=4)),
+        ("passes 2, pass_reach 0.25", dict(passes=2, pass_reach=0.25)),
+        ("passes 2, pass_reach 1", dict(passes=2, pass_reach=1.0)),
+        ("passes 2, damping 0.5", dict(passes=2, damping=0.5)),
+        ("passes 2, bunnell blend", dict(passes=2, combine="bunnell")),
+        ("passes 2, Bunnell's weights (pass_reach inf)", dict(passes=2, pass_reach=np.inf)),
+        ("passes 3, Bunnell's weights", dict(passes=3, pass_reach=np.inf)),
+        ("passes 2, Bunnell's weights, bunnell blend", dict(passes=2, pass_reach=np.inf, combine="bunnell")),
+        ("passes 2, Bunnell's weights, hoberock blend", dict(passes=2, pass_reach=np.inf, combine="hoberock")),
+        ("passes 3, Bunnell's weights, hoberock blend", dict(passes=3, pass_reach=np.inf, combine="hoberock")),
+        ("published, passes 2, bunnell blend", dict(near=0.0, sides="front", passes=2, pass_reach=np.inf, combine="bunnell")),
+    ]
+    out = [(label, (lambda s, kw=kw: B.bunnell_ao(s, **kw)), kw.get("passes", 1)) for label, kw in rows]
+    out += [
+        ("hybrid: 16 rays, reach 4, sum", lambda s: hybrid_ao(s).ao, 1),
+        ("hybrid: 16 rays, reach 4, product", lambda s: hybrid_ao(s, combine="product").ao, 1),
+        ("hybrid: 64 rays, reach 4, sum", lambda s: hybrid_ao(s, n_rays=64).ao, 1),
+    ]
+    out += [(f"embree {n} rays", (lambda s, n=n: embree_ao(s, n_rays=n, seed=1).ao), 1) for n in (16, 64, 256)]
+    return out
+
+
+def section_accuracy(all_scenes, repeats):
+    print(f"\n## 1. Accuracy against Embree ({REF_RAYS} rays): RMSE / p99 / bias of ao, and time\n")
+    names = list(all_scenes)
+    results = {}
+    for name, s in all_scenes.items():
+        ref = reference(name.split(" (")[0].replace(" ", "_").replace(".", "_"), s)
+        rows = []
+        for label, fn, _ in variants(s.n_vertices):
+            reps = repeats if s.n_vertices > 50_000 else max(repeats, 3)
+            ao, wall, cpu = run(lambda fn=fn, s=s: fn(s), reps)
+            rmse, p99, bias = scores(ao, ref, s)
+            rows.append((label, rmse, p99, bias, wall, cpu))
+            print(f"  {name}: {label}: {rmse:.4f} {wall:.2f}s", file=sys.stderr, flush=True)
+        results[name] = rows
+    labels = [r[0] for r in next(iter(results.values()))]
+    big = names[-1]
+    print("RMSE (p99) per scene; time in seconds on the big scene (wall / CPU):\n")
+    header = ["variant"] + [f"{n} [{all_scenes[n].n_vertices}]" for n in names] + ["big: s (CPU s)"]
+    table = []
+    for label in labels:
+        row = [label]
+        for n in names:
+            hit = [r for r in results[n] if r[0] == label]
+            row.append(f"{hit[0][1]:.4f} ({hit[0][2]:.3f})" if hit else "-")
+        hit = [r for r in results[big] if r[0] == label]
+        row.append(f"{hit[0][4]:.2f} ({hit[0][5]:.2f})" if hit else "-")
+        table.append(row)
+    print(common.markdown_table(header, table, "l" + "r" * (len(header) - 1)))
+    print("\nBias (mean of ao - reference; negative = too dark):\n")
+    table = [[label] + [
+        next((f"{r[3]:+.3f}" for r in results[n] if r[0] == label), "-") for n in names
+    ] for label in labels]
+    print(common.markdown_table(["variant"] + names, table, "l" + "r" * len(names)))
+    return results
+
+
+def exact_subset(elements, subset, near):
+    """Exact pass-1 occlusion (max rule) at ``subset`` receivers (brute force)."""
+    job = B._Pass(elements, None, B.DEFAULT_THETA, near, K.MEASURE_COSINE, np.inf)
+    out = np.zeros((elements.n_vertices, 2, K.N_BINS))
+    ones = np.ones(elements.n_vertices)
+    disks = (elements.positions, elements.normals, elements.areas, np.ones((elements.n_vertices, K.N_LEVELS)))
+    cells = (elements.corner_start, elements.corners, ones)
+    K.brute_force_pass(disks, cells, elements.emitter_index, job.receivers, subset, job.options, out)
+    return np.clip(out[:, :, -1].max(axis=1)[subset], 0.0, 1.0)
+
+
+def section_speed(surface, desc, repeats, n_check):
+    import numba
+
+    print(f"\n## 2. Speed on {surface.n_vertices} vertices ({desc}), {numba.get_num_threads()} threads\n")
+    (elements, t_el, c_el) = run(lambda: B.build_elements(surface), repeats)
+    tree, t_build, _ = run(lambda: B.build_tree(elements), repeats)
+    _, t_refit, _ = run(lambda: B.refit_tree(tree, elements.positions, elements.areas), repeats)
+    print(f"build_elements: {t_el:.2f} s (CPU {c_el:.2f} s); build_tree {t_build:.2f} s, "
+          f"refit_tree (animation: same mesh, new positions) {t_refit:.2f} s\n")
+    subset = np.sort(np.random.default_rng(0).choice(surface.n_vertices, n_check, replace=False))
+    exact = {nu: exact_subset(elements, subset, nu) for nu in (0.0, 4.0)}
+    rows = []
+    for leaf in (16, 32, 64):
+        tree, t_tree, c_tree = run(lambda leaf=leaf: B.build_tree(elements, leaf_size=leaf), repeats)
+        for theta in (2.0, 4.0, 8.0):
+            for nu in (0.0, 4.0):
+                if leaf != B.DEFAULT_LEAF_SIZE and theta != B.DEFAULT_THETA:
+                    continue
+                occ, t1, c1 = run(
+                    lambda tree=tree, theta=theta, nu=nu: B.occlusion_passes(
+                        elements, tree, theta=theta, near=nu
+                    )[0],
+                    repeats,
+                )
+                e = occ[subset] - exact[nu]
+                rows.append([leaf, f"{t_tree:.2f}", theta, nu, f"{t1:.2f}", f"{c1:.2f}",
+                             f"{np.sqrt(np.mean(e**2)):.4f}", f"{np.quantile(np.abs(e), 0.99):.4f}"])
+                print(f"  leaf {leaf} theta {theta} near {nu}: {t1:.2f}s", file=sys.stderr, flush=True)
+    print(common.markdown_table(
+        ["leaf", "tree s", "theta", "near", "pass s", "pass CPU s", f"RMSE vs exact ({n_check})", "p99"],
+        [[str(c) for c in r] for r in rows],
+    ))
+    for passes in (1, 2):
+        _, t_all, c_all = run(lambda passes=passes: B.bunnell_ao(surface, passes=passes), repeats)
+        print(f"\nbunnell_ao, passes={passes}, everything included: {t_all:.2f} s (CPU {c_all:.2f} s)")
+
+
+def section_scaling(threads, repeats):
+    print(f"\n## 3. Scaling at the defaults (theta {B.DEFAULT_THETA:g}, near {B.DEFAULT_NEAR:g}, "
+          f"leaf {B.DEFAULT_LEAF_SIZE})\n")
+    rows = []
+    prev = None
+    for n_target in (44_000, 175_000, 700_000):
+        s, _ = common.spheres_on_ground(n_target)
+        n = s.n_vertices
         elements = B.build_elements(s)
-        occ = B.occlusion_passes(elements, None, passes=4, threads=threads)
-        results = [1.0 - occ[k] for k in range(4)]
-        results.append(B.combine_passes(occ[:2], "bunnell"))
-        results.append(B.combine_passes(occ[:2], "hoberock"))
-        results.append(B.combine_passes(occ[:3], "hoberock"))
-        tree = B.build_tree(elements)
-        for theta in thetas:
-            results.append(
-                1.0 - B.occlusion_passes(elements, tree, passes=1, theta=theta, threads=threads)[0]
-            )
-        cells = []
-        for ao in results:
-            err = ao[ok] - ref[ok]
-            cells.append(f"{np.sqrt(np.mean(err**2)):.3f} / {err.mean():+.3f}")
-        print(f"| {name} | {s.n_vertices} | " + " | ".join(cells) + " |")
+        tree, t_tree, _ = run(lambda elements=elements: B.build_tree(elements), repeats)
+        _, t1, c1 = run(lambda elements=elements, tree=tree: B.occlusion_passes(elements, tree), repeats)
+        ratio = "" if prev is None else f"{t1 / prev[1]:.2f}"
+        cratio = "" if prev is None else f"{c1 / prev[2]:.2f}"
+        nlogn = "" if prev is None else f"{n * np.log(n) / (prev[0] * np.log(prev[0])):.2f}"
+        rows.append([str(n), f"{t_tree:.2f}", f"{t1:.2f}", f"{c1:.2f}", f"{1e6 * c1 / n:.2f}", ratio, cratio, nlogn])
+        prev = (n, t1, c1)
+    print(common.markdown_table(
+        ["n", "tree s", "pass s", "pass CPU s", "CPU us / vertex", "time ratio", "CPU ratio", "n log n ratio"],
+        rows,
+    ))
+
+
+def section_timing(surface):
+    print(f"\n## 4. Round-robin timing on {surface.n_vertices} vertices (best of 3 rounds)\n")
+    fns = {
+        "bunnell published (near 0, front faces)": lambda: B.bunnell_ao(surface, near=0.0, sides="front"),
+        "bunnell default": lambda: B.bunnell_ao(surface),
+        "bunnell --passes 2": lambda: B.bunnell_ao(surface, passes=2),
+        "hybrid (16 rays, reach 4)": lambda: hybrid_ao(surface).ao,
+        "embree 16 rays": lambda: embree_ao(surface, n_rays=16, seed=1).ao,
+    }
+    res = common.interleaved(fns, repeats=3)
+    rows = [[k, f"{v.seconds:.2f}", f"{v.cpu:.2f}", f"{v.cores:.2f}"] for k, v in res.items()]
+    print(common.markdown_table(["method", "wall s", "CPU s", "cores busy"], rows))
 
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--quick", action="store_true", help="smaller meshes (~25k and ~100k)")
+    parser.add_argument("--quick", action="store_true", help="100k instead of 700k vertices")
     parser.add_argument("--threads", type=int, default=None, help="numba threads (default: all)")
     parser.add_argument("--sections", default="1234", help="which sections to run, e.g. 13")
-    parser.add_argument(
-        "--check", type=int, default=1000, help="receivers checked against the exact sum"
-    )
+    parser.add_argument("--repeats", type=int, default=2, help="best of this many runs")
+    parser.add_argument("--check", type=int, default=2000, help="receivers checked against the exact sum")
     args = parser.parse_args()
     import numba
 
-    threads = args.threads or numba.get_num_threads()
-    warm_up(threads)
-    big = [(230, 5, 4), (600, 7, 2)] if not args.quick else [(110, 4, 4), (230, 5, 4)]
+    if args.threads:
+        numba.set_num_threads(args.threads)
+    print("# bench_bunnell\n")
+    for label, value in common.machine_facts():
+        print(f"- {label}: {value}")
+    B.bunnell_ao(common.spheres_on_ground(25_000)[0])  # compile
+    hybrid_ao(common.spheres_on_ground(25_000)[0])
+    all_scenes, desc = scenes(args.quick)
     if "1" in args.sections:
-        section_hierarchy(
-            [spheres_on_ground(*c) for c in big], [2.0, 4.0, 8.0, 16.0], threads, args.check
-        )
+        section_accuracy(all_scenes, args.repeats)
     if "2" in args.sections:
-        section_leaf(spheres_on_ground(*big[0]), [1, 2, 4, 8, 16], threads, args.check)
-    if "3" in args.sections:
-        configs = [(110, 4, 4), (230, 5, 4), (460, 6, 4)]
-        section_scaling(configs[:2] if args.quick else configs, threads)
+        section_speed(list(all_scenes.values())[-1], desc, args.repeats, args.check)
+    if "3" in args.sections and not args.quick:
+        section_scaling(numba.get_num_threads(), args.repeats)
     if "4" in args.sections:
-        section_reference(threads)
+        section_timing(list(all_scenes.values())[-1])
 
 
 if __name__ == "__main__":

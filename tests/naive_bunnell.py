@@ -117,7 +117,7 @@ def naive_cell(positions, faces, j, point, normal, measure="cosine"):
 
 def naive_sums(
     positions, normals, areas, faces, points, weights, measure="cosine", max_distance=None,
-    near=0.0, cell_weights=None,
+    near=0.0, cell_weights=None, radii=None, reach=np.inf,
 ):
     """Unsaturated (front, back) sums at every vertex, one receiver at a time.
 
@@ -128,12 +128,19 @@ def naive_sums(
     (:func:`naive_cell`) times its cell weight. Otherwise the disk: skipped when
     coincident (r^2 <= 1e-12 A); a receiver without a normal uses the mean receiver
     weight (1/4 cosine, 1/2 uniform); ``front`` when the emitter faces the receiver.
+
+    ``weights`` (n,) or, with ``radii`` (ascending), (n, len(radii) + 1): the disk of j
+    at distance r then weighs ``weights[j, #{R in radii : reach r >= R}]``. Returns
+    (n, 2), or with ``radii`` (n, 2, len(radii)): cumulative, bin b summing the
+    emitters with ``r < radii[b]``.
     """
     positions = np.asarray(positions, dtype=np.float64)
     cell_weights = weights if cell_weights is None else cell_weights
     n = len(positions)
     casts = (areas > 0) & (np.linalg.norm(normals, axis=1) > 0)
-    out = np.zeros((n, 2))
+    radii = None if radii is None else np.asarray(radii, dtype=float)
+    bins = 1 if radii is None else len(radii)
+    out = np.zeros((n, 2, bins))
     p32, a32 = positions.astype(np.float32), areas.astype(np.float32)
     around = [[] for _ in range(n)]
     for f in np.asarray(faces):
@@ -151,13 +158,15 @@ def naive_sums(
             r2 = d @ d
             if max_distance is not None and r2 > max_distance**2:
                 continue
+            r = np.sqrt(r2)
+            reached = slice(0, bins) if radii is None else (r < radii)
             if has_normal and r2_32[j] < np.float32(near) * a32[j]:
                 f, b = naive_cell(positions, around[j], j, p, normals[i], measure)
-                out[i] += cell_weights[j] * np.array([f, b])
+                out[i][:, reached] += cell_weights[j] * np.array([f, b])[:, None]
                 continue
-            if r2 <= 1e-12 * areas[j] or weights[j] <= 0:
+            w = weights[j] if radii is None else weights[j, np.sum(reach * r >= radii)]
+            if r2 <= 1e-12 * areas[j] or w <= 0:
                 continue
-            r = np.sqrt(r2)
             cos_e = -normals[j] @ d / r
             cos_r = normals[i] @ d / r
             a = areas[j]
@@ -167,19 +176,21 @@ def naive_sums(
             else:
                 g = np.clip(4.0 * cos_r, 0.0, 1.0) if has_normal else 0.5
                 term = (1.0 - r / np.sqrt(a / np.pi + r2)) * abs(cos_e) * g
-            out[i, 0 if cos_e > 0 else 1] += weights[j] * term
-    return out
+            out[i][0 if cos_e > 0 else 1, reached] += w * term
+    return out[:, :, 0] if radii is None else out
 
 
 def naive_bunnell_ao(
     surface: Surface, passes=2, measure="cosine", max_distance=None, combine="last", near=0.0,
-    sides="max", damping=1.0,
+    sides="max", damping=1.0, pass_reach=0.5,
 ):
     """Exact (no hierarchy) multi-pass disk AO, straight from the definitions.
 
     Coordinates are normalised like the kernels' (bounding-box centre and largest
     extent); receivers sit 1e-4 sqrt(A) above their vertex along the normal; in pass k
-    disk weights are ``1 - damping A_{k-1}``, cell weights 1.
+    the disk of j at distance r weighs ``1 - damping A_{k-1}(j; R)``, its occlusion by
+    emitters closer than the largest of PASS_RADII that is <= pass_reach r (1 when none
+    is); cell weights 1.
 
     Returns
     -------
@@ -191,16 +202,17 @@ def naive_bunnell_ao(
     areas = naive_vertex_areas(positions, surface.faces)
     points = positions + 1e-4 * np.sqrt(areas)[:, None] * surface.normals
     reach = None if max_distance is None else max_distance / scale
-    weights = np.ones(len(positions))
+    radii = np.array([0.005, 0.02, 0.08, 0.32, 1.28, 5.12])  # aobake.constants.PASS_RADII
+    weights = np.ones((len(positions), len(radii) + 1))
     occ = []
     for _ in range(passes):
         sums = naive_sums(
             positions, surface.normals, areas, surface.faces, points, weights, measure, reach,
-            near, np.ones(len(positions)),
+            near, np.ones(len(positions)), radii, pass_reach,
         )
-        a = np.clip(sums.max(axis=1) if sides == "max" else sums[:, 0], 0, 1)
-        occ.append(a)
-        weights = 1.0 - damping * a
+        a = np.clip(sums.max(axis=1) if sides == "max" else sums[:, 0], 0, 1)  # (n, bins)
+        occ.append(a[:, -1])
+        weights[:, 1:] = 1.0 - damping * a
     occ = np.array(occ)
     if combine == "last":
         ao = 1.0 - occ[-1]

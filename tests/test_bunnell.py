@@ -4,11 +4,22 @@ against a numpy reference, the hierarchy against the exact sum, passes, and bad 
 from __future__ import annotations
 
 import numba
-import trimesh
 import numpy as np
 import pytest
+import trimesh
 from hypothesis import given, settings
 from hypothesis import strategies as st
+
+from aobake import bunnell as B
+from aobake import hierarchy as H
+from aobake.constants import PASS_RADII
+from aobake.errors import NumericalError
+from aobake.kernels import bunnell as K
+from aobake.kernels import hierarchy as KH
+from aobake.kernels import polygon as KP
+from aobake.kernels import treepass as KT
+from aobake.mesh import Surface, surface_from_arrays
+
 from naive_bunnell import (
     combine_meshes,
     disk_on_axis_cosine,
@@ -25,14 +36,6 @@ from naive_bunnell import (
     touching_spheres,
     voxel_sponge,
 )
-
-from aobake import bunnell as B
-from aobake import hierarchy as H
-from aobake.errors import NumericalError
-from aobake.kernels import bunnell as K
-from aobake.kernels import hierarchy as KH
-from aobake.kernels import polygon as KP
-from aobake.mesh import Surface, surface_from_arrays
 
 R_DISK, H_DISK = 0.7, 1.3
 
@@ -258,7 +261,8 @@ def test_brute_force_kernel_matches_numpy_reference(measure, max_distance, near)
     e = B.build_elements(s)
     rng = np.random.default_rng(1)
     w, wc = rng.random(e.n_vertices), rng.random(e.n_vertices)
-    out = _sums(e, None, w, measure=measure, max_distance=max_distance, near=near, cell_weights=wc)
+    out = _sums(e, None, w, measure=measure, max_distance=max_distance, near=near,
+                cell_weights=wc)[:, :, -1]
     reach = None if max_distance is None else max_distance / e.scale
     expected = naive_sums(
         e.positions, e.normals, e.areas, s.faces, e.points, w, measure, reach, near, wc
@@ -302,7 +306,7 @@ def test_hierarchy_raw_sums_with_weights_match_brute_force(measure):
 def test_error_shrinks_as_theta_grows(scene, measure):
     s = scene()
     e = B.build_elements(s)
-    tree = B.build_tree(e)
+    tree = B.build_tree(e, leaf_size=4)  # small leaves: a deep tree on a small scene
     exact = B.occlusion_passes(e, None, measure=measure)[0]
     errors = []
     for theta in [0.5, 2.0, 8.0, 32.0, 128.0]:
@@ -348,12 +352,12 @@ def test_huge_max_distance_equals_unbounded():
 def test_passes_and_combine_match_numpy_reference(combine, measure):
     s = facing_plates(cells=6)
     expected, occ = naive_bunnell_ao(
-        s, passes=3, measure=measure, combine=combine, near=4.0, damping=0.3
+        s, passes=3, measure=measure, combine=combine, near=4.0, damping=0.7, pass_reach=2.0
     )
     assert occ[0].max() > 0.2 and not np.allclose(occ[0], occ[1])
     got = B.bunnell_ao(s, passes=3, measure=measure, combine=combine, exact=True, near=4.0,
-                       damping=0.3)
-    np.testing.assert_allclose(got, expected, rtol=0, atol=1e-12)
+                       damping=0.7, pass_reach=2.0)
+    np.testing.assert_allclose(got, expected, rtol=0, atol=1e-10)
 
 
 def test_combine_formulas():
@@ -371,12 +375,42 @@ def test_combine_sides():
     np.testing.assert_array_equal(B.combine_sides(sums, "max"), [0.3, 1.4, 0.0])
 
 
-@pytest.mark.parametrize("damping", [0.3, 1.0])
-def test_later_passes_lighten_double_shadows(damping):
+@pytest.mark.parametrize("pass_reach", [0.5, np.inf])
+def test_later_passes_lighten_double_shadows(pass_reach):
     s = facing_plates(cells=8)
-    occ = B.occlusion_passes(B.build_elements(s), None, passes=2, damping=damping, near=0.0)
+    e = B.build_elements(s)
+    occ = B.occlusion_passes(e, None, passes=2, pass_reach=pass_reach, near=0.0)
     assert np.all(occ[1] <= occ[0] + 1e-15)
     assert occ[1].mean() < occ[0].mean()
+    tree = B.build_tree(e, leaf_size=4)
+    np.testing.assert_allclose(
+        B.occlusion_passes(e, tree, passes=2, pass_reach=pass_reach, near=0.0, theta=np.inf),
+        occ, rtol=0, atol=2e-6,
+    )
+
+
+def test_single_layer_does_not_collapse():
+    """Facing plates: one layer, no double shadow. Bunnell's weights (the whole previous
+    pass: pass_reach = inf) make pass 2 collapse toward open; weights from the geometry
+    near each emitter only (the default) keep pass 2 close to pass 1."""
+    s = facing_plates(cells=8)
+    e = B.build_elements(s)
+    published = B.occlusion_passes(e, None, passes=2, pass_reach=np.inf)
+    ours = B.occlusion_passes(e, None, passes=2)
+    centre = np.abs(s.positions[:, :2]).max(axis=1) < 0.3
+    assert published[1][centre].mean() < 0.5 * published[0][centre].mean()
+    assert ours[1][centre].mean() > 0.9 * ours[0][centre].mean()
+
+
+def test_cumulative_bins_match_max_distance():
+    """The distance bins of a pass are the sums with max_distance = each bin radius."""
+    s = small_scene()
+    e = B.build_elements(s)
+    job = B._Pass(e, None, 4.0, 4.0, K.MEASURE_COSINE, np.inf)
+    binned = job.sums(np.ones(e.n_vertices), B.NullProgress(), binned=True)
+    for b, radius in enumerate(PASS_RADII[:-1]):
+        cut = _sums(e, None, np.ones(e.n_vertices), max_distance=radius * e.scale * (1 - 1e-12))
+        np.testing.assert_allclose(binned[:, :, b], cut[:, :, -1], rtol=0, atol=1e-12)
 
 
 # --------------------------------------------------------------------------------------
@@ -724,6 +758,23 @@ def test_refit_tree_matches_a_fresh_geometry():
     )
 
 
+def test_bunnell_ao_refits_a_given_tree():
+    """Animation: a tree from frame 0 is refit to frame 1 (same emitters) and gives frame
+    1's exact sum at huge theta; with a different emitter set it is rebuilt."""
+    s0 = touching_spheres()
+    moved = s0.positions.copy()
+    moved[: len(moved) // 2] += [-0.05, 0.02, 0.0]  # the first sphere moves away
+    s1 = surface_from_arrays(moved, s0.faces)
+    tree0 = B.build_tree(B.build_elements(s0), leaf_size=4)
+    np.testing.assert_allclose(
+        B.bunnell_ao(s1, tree=tree0, theta=np.inf), B.bunnell_ao(s1, exact=True), atol=2e-6
+    )
+    refit = B.bunnell_ao(s1, tree=tree0)
+    assert np.sqrt(np.mean((refit - B.bunnell_ao(s1)) ** 2)) < 5e-3
+    other = B.build_tree(B.build_elements(small_scene()))
+    np.testing.assert_array_equal(B.bunnell_ao(s1, tree=other), B.bunnell_ao(s1))
+
+
 # --------------------------------------------------------------------------------------
 # API: validation, errors, progress
 
@@ -741,6 +792,7 @@ def test_refit_tree_matches_a_fresh_geometry():
         (dict(sides="both"), "sides must be one of"),
         (dict(damping=0.0), r"damping must be in \(0, 1\]"),
         (dict(damping=1.5), r"damping must be in \(0, 1\]"),
+        (dict(pass_reach=0.0), "pass_reach must be > 0"),
         (dict(measure="solid"), "measure must be one of"),
         (dict(max_distance=0.0), "max_distance must be finite and > 0"),
         (dict(max_distance=float("inf")), "max_distance must be finite and > 0"),
@@ -759,12 +811,12 @@ def test_bad_options_raise(kwargs, match):
 
 @pytest.mark.parametrize("exact", [True, False])
 def test_non_finite_kernel_output_raises_numerical_error(monkeypatch, exact):
-    name = "brute_force_pass" if exact else "hierarchy_pass"
+    module, name = (B._k, "brute_force_pass") if exact else (B._tp, "hierarchy_pass")
 
     def broken(*args):
         args[-1][:] = np.nan
 
-    monkeypatch.setattr(B._k, name, broken)
+    monkeypatch.setattr(module, name, broken)
     with pytest.raises(NumericalError, match="^bunnell: .* non-finite"):
         B.bunnell_ao(touching_spheres(), exact=exact)
 
@@ -813,16 +865,17 @@ def test_each_kernel_compiled_once():
     if numba.config.DISABLE_JIT:
         pytest.skip("JIT disabled")
     B.bunnell_ao(touching_spheres(), passes=2)
-    B.bunnell_ao(touching_spheres(), passes=1, exact=True)
+    B.bunnell_ao(touching_spheres(), passes=2, exact=True)
     B.bunnell_ao(touching_spheres(), measure="uniform", max_distance=0.5)
     for kernel in (
         K.brute_force_pass,
-        K.hierarchy_pass,
-        K.bucket_bounds,
+        KT.hierarchy_pass,
+        KT.bucket_bounds,
         KH.build_tree,
         KH.node_geometry,
         KH.refit_nodes,
         KP.cell_corners,
+        KP.vertex_areas,
     ):
         assert len(kernel.signatures) == 1, (kernel, kernel.signatures)
 

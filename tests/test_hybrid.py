@@ -4,13 +4,14 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from naive_bunnell import facing_plates, sphere_on_plane, touching_spheres
 
 from aobake import bunnell as B
 from aobake.hybrid import hybrid_ao
 from aobake.mesh import surface_from_arrays
 from aobake.raytrace import embree_ao
 from aobake.sampling import sample_directions
+
+from naive_bunnell import facing_plates, sphere_on_plane, touching_spheres
 
 
 def test_near_field_is_the_reference_estimator_with_short_rays():

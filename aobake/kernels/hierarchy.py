@@ -10,9 +10,10 @@ Node rows (float32, one 64-byte cache line per node, written by :func:`pack_node
 
 - N_X..N_Z: area-weighted mean disk centre; N_RADIUS: bounding radius b (disks included);
 - N_OPEN_D2: squared distance from the receivers beyond which the node is used whole;
-- N_WAREA: ``A_w = sum w A`` (w: the emitter's pass weight);
-- N_NX..N_NZ: ``N = sum w A m`` (m: unit disk normal);
-- N_TXX..N_TYZ: ``kappa^2 T`` with ``T = sum w A m m^T`` (see ``bunnell.cluster_projection``);
+- N_WAREA: the largest over the weight levels of ``A_w = sum w A`` (w: pass weight);
+- N_NX..N_NZ: ``N = sum w A m`` (m: unit disk normal), last weight level;
+- N_TXX..N_TYZ: ``kappa^2 T`` with ``T = sum w A m m^T``, last weight level (the traversal
+  reads every level from the separate ``moments`` array, see :func:`refit_nodes`);
 - N_AREA: summed area A.
 """
 
@@ -28,11 +29,12 @@ N_NX, N_NY, N_NZ = 6, 7, 8
 N_TXX, N_TYY, N_TZZ, N_TXY, N_TXZ, N_TYZ = 9, 10, 11, 12, 13, 14
 N_AREA = 15
 NODE_COLS = 16
-# per-pass sums (float64, internal to refit_nodes): A_w, N (3), T (6)
+# per-pass sums per weight level: A_w, N (3), kappa^2 T (6)
 MOMENT_COLS = 10
+M_WA, M_NX, M_NY, M_NZ, M_TXX, M_TYY, M_TZZ, M_TXY, M_TXZ, M_TYZ = range(10)
 
-# Emitter rows (float32): centre, unit normal, area, pass weight.
-E_X, E_Y, E_Z, E_MX, E_MY, E_MZ, E_AREA, E_WEIGHT = 0, 1, 2, 3, 4, 5, 6, 7
+# Emitter rows (float32): centre, unit normal, area (weights: a separate (k, L) table).
+E_X, E_Y, E_Z, E_MX, E_MY, E_MZ, E_AREA = 0, 1, 2, 3, 4, 5, 6
 EMITTER_COLS = 8
 
 
@@ -246,54 +248,69 @@ def spread_factor(area, txx, tyy, tzz, txy, txz, tyz):
 
 
 @njit(cache=True, fastmath=FASTMATH, error_model="numpy")
-def refit_nodes(emitters, skip, start, stop, nodes):
-    """Per-pass node columns from the emitters' weights: ``A_w = sum w A``,
-    ``N = sum w A m`` and ``kappa^2 T`` with ``T = sum w A m m^T``.
+def refit_nodes(emitters, weights, skip, start, stop, nodes, moments):
+    """Per-pass node sums from the emitters' weights, one set per weight level ``l``:
+    ``A_w = sum w_l A``, ``N = sum w_l A m`` and ``kappa^2 T`` with ``T = sum w_l A m m^T``.
 
-    Bottom-up in reverse preorder (children before parents: O(m)) in float64; a leaf
+    Bottom-up in reverse preorder (children before parents: O(m L)) in float64; a leaf
     sums its emitters, an internal node q adds its children q + 1 and skip[q + 1]. The
-    moments are then multiplied by ``kappa^2`` (:func:`spread_factor`) and stored as
-    float32 in every per-pass column of every node.
+    moments are multiplied by ``kappa^2`` (:func:`spread_factor`) and stored as float32.
 
     Parameters
     ----------
     emitters : (k, EMITTER_COLS) float32
+    weights : (k, L) float32
+        Each emitter's weight at each level (see ``aobake.kernels.bunnell``).
     skip, start, stop : (m,) int64
     nodes : (m, NODE_COLS) float32
-        Geometry columns are left as they are.
+        Writes N_WAREA (the largest A_w over the levels: 0 means the node casts
+        nothing at any distance) and, from level L - 1, N_NX..N_TYZ.
+    moments : (m, L, MOMENT_COLS) float32
+        Written in full: per level ``(A_w, N (3), kappa^2 T (6))``.
     """
     m = skip.shape[0]
-    mom = np.zeros((m, MOMENT_COLS))
+    levels = weights.shape[1]
+    mom = np.zeros((m, levels, MOMENT_COLS))
     for q in range(m - 1, -1, -1):
         if skip[q] == q + 1:
             for j in range(start[q], stop[q]):
-                wa = np.float64(emitters[j, E_WEIGHT]) * np.float64(emitters[j, E_AREA])
+                area = np.float64(emitters[j, E_AREA])
                 mx = np.float64(emitters[j, E_MX])
                 my = np.float64(emitters[j, E_MY])
                 mz = np.float64(emitters[j, E_MZ])
-                mom[q, 0] += wa
-                mom[q, 1] += wa * mx
-                mom[q, 2] += wa * my
-                mom[q, 3] += wa * mz
-                mom[q, 4] += wa * mx * mx
-                mom[q, 5] += wa * my * my
-                mom[q, 6] += wa * mz * mz
-                mom[q, 7] += wa * mx * my
-                mom[q, 8] += wa * mx * mz
-                mom[q, 9] += wa * my * mz
+                for lv in range(levels):
+                    wa = np.float64(weights[j, lv]) * area
+                    mom[q, lv, 0] += wa
+                    mom[q, lv, 1] += wa * mx
+                    mom[q, lv, 2] += wa * my
+                    mom[q, lv, 3] += wa * mz
+                    mom[q, lv, 4] += wa * mx * mx
+                    mom[q, lv, 5] += wa * my * my
+                    mom[q, lv, 6] += wa * mz * mz
+                    mom[q, lv, 7] += wa * mx * my
+                    mom[q, lv, 8] += wa * mx * mz
+                    mom[q, lv, 9] += wa * my * mz
         else:
             left = q + 1
             right = skip[left]
-            for c in range(MOMENT_COLS):
-                mom[q, c] = mom[left, c] + mom[right, c]
+            for lv in range(levels):
+                for c in range(MOMENT_COLS):
+                    mom[q, lv, c] = mom[left, lv, c] + mom[right, lv, c]
     for q in range(m):
-        kappa = spread_factor(
-            mom[q, 0], mom[q, 4], mom[q, 5], mom[q, 6], mom[q, 7], mom[q, 8], mom[q, 9]
-        )
-        k2 = kappa * kappa
-        nodes[q, N_WAREA] = mom[q, 0]
-        nodes[q, N_NX] = mom[q, 1]
-        nodes[q, N_NY] = mom[q, 2]
-        nodes[q, N_NZ] = mom[q, 3]
+        most = 0.0
+        for lv in range(levels):
+            row = mom[q, lv]
+            kappa = spread_factor(row[0], row[4], row[5], row[6], row[7], row[8], row[9])
+            k2 = kappa * kappa
+            for c in range(4):
+                moments[q, lv, c] = row[c]
+            for c in range(4, MOMENT_COLS):
+                moments[q, lv, c] = k2 * row[c]
+            most = max(most, row[0])
+        nodes[q, N_WAREA] = most
+        last = levels - 1
+        nodes[q, N_NX] = moments[q, last, 1]
+        nodes[q, N_NY] = moments[q, last, 2]
+        nodes[q, N_NZ] = moments[q, last, 3]
         for c in range(6):
-            nodes[q, N_TXX + c] = k2 * mom[q, 4 + c]
+            nodes[q, N_TXX + c] = moments[q, last, 4 + c]

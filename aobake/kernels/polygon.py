@@ -7,8 +7,9 @@ exact form factor of the surface it stands for, its barycentric cell.
 Conventions (as in ``aobake.kernels.bunnell``): receiver at ``p`` with unit normal ``n``
 (a zero normal is not allowed here); polygon corners ``q_k`` in counter-clockwise order
 about the polygon's front normal. Only the part of the polygon above the tangent plane,
-``n.(x - p) >= 0``, is counted (Sutherland-Hodgman clipping), and only when its front
-side faces the receiver (front faces cast, like the disks).
+``n.(x - p) >= 0``, is counted (Sutherland-Hodgman clipping); the caller learns which
+side of it faces the receiver (front and back sums, like the disks). Also the small
+per-vertex tables the near field needs: disk areas and the triangles around each vertex.
 
 References
 ----------

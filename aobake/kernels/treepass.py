@@ -1,0 +1,632 @@
+"""Compiled tree pass of the disk method: buckets of receivers walk the cluster tree once,
+then each receiver sums the interaction lists in vectorised float32 loops.
+
+Imports numpy, numba and ``aobake.constants`` only. Symbols as in
+``aobake.kernels.bunnell``; the tree is ``aobake.kernels.hierarchy``'s.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+from numba import njit, prange
+
+from aobake.constants import COINCIDENT_REL, FASTMATH
+
+from .bunnell import (
+    HALF32,
+    N_BINS,
+    NO_NORMAL_COSINE,
+    NO_NORMAL_UNIFORM,
+    PI32,
+    ZERO32,
+    disk_pair32,
+    is_near,
+    level_of,
+)
+from .hierarchy import (
+    E_AREA,
+    E_MX,
+    E_MY,
+    E_MZ,
+    E_X,
+    E_Y,
+    E_Z,
+    M_NX,
+    M_NY,
+    M_NZ,
+    M_TXX,
+    M_TXY,
+    M_TXZ,
+    M_TYY,
+    M_TYZ,
+    M_TZZ,
+    M_WA,
+    N_OPEN_D2,
+    N_RADIUS,
+    N_WAREA,
+    N_X,
+    N_Y,
+    N_Z,
+)
+from .polygon import MEASURE_COSINE, cell_terms
+
+# Scratch rows per thread (float32): the near list (emitters of opened leaves: centre,
+# normal, area, then area x weight per level) and the far list (nodes used whole),
+# copied per bucket of receivers so each receiver's sums are contiguous loops.
+S_X, S_Y, S_Z, S_MX, S_MY, S_MZ, S_A, S_WA = 0, 1, 2, 3, 4, 5, 6, 7
+F_X, F_Y, F_Z, F_WA, F_NX, F_NY, F_NZ = 0, 1, 2, 3, 4, 5, 6
+F_TXX, F_TYY, F_TZZ, F_TXY, F_TXZ, F_TYZ = 7, 8, 9, 10, 11, 12
+FAR_ROWS = 13
+
+# level_weight spells out the select chain for this many bins
+assert N_BINS == 6, "update level_weight and binned_sums for the new PASS_RADII"
+
+# Slack of the bucket-level near-field candidate test (normalised units and relative):
+# far above the float32 rounding of coordinates of order 1 (6e-8) in the receivers' test.
+CAND_SLACK = 1e-5
+
+
+def near_rows(levels: int) -> int:
+    """Rows of the near-list scratch for ``levels`` weight levels."""
+    return S_WA + levels
+
+
+@njit(cache=True, fastmath=FASTMATH, error_model="numpy")
+def bucket_bounds(points, inner, order, bucket_start, out):
+    """Centre (mean), bounding radius and largest inner radius of each bucket's receivers:
+    ``out[b] = (x, y, z, r, inner)``.
+
+    Parameters
+    ----------
+    points : (n, 3) float64
+    inner : (n,) float64
+    order : (n,) int64
+        Receivers in bucket order; bucket b is ``order[bucket_start[b]:bucket_start[b + 1]]``.
+    bucket_start : (nb + 1,) int64
+    out : (nb, 5) float64
+    """
+    for b in range(bucket_start.shape[0] - 1):
+        lo = bucket_start[b]
+        hi = bucket_start[b + 1]
+        cx = 0.0
+        cy = 0.0
+        cz = 0.0
+        for q in range(lo, hi):
+            i = order[q]
+            cx += points[i, 0]
+            cy += points[i, 1]
+            cz += points[i, 2]
+        cx /= hi - lo
+        cy /= hi - lo
+        cz /= hi - lo
+        rb = 0.0
+        most = 0.0
+        for q in range(lo, hi):
+            i = order[q]
+            most = max(most, inner[i])
+            dx = points[i, 0] - cx
+            dy = points[i, 1] - cy
+            dz = points[i, 2] - cz
+            rb = max(rb, np.sqrt(dx * dx + dy * dy + dz * dz))
+        out[b, 0] = cx
+        out[b, 1] = cy
+        out[b, 2] = cz
+        # one float32 ulp of slack per coordinate: the receivers compare in float32
+        out[b, 3] = rb * (1.0 + 1e-6) + 1e-6 * (abs(cx) + abs(cy) + abs(cz))
+        out[b, 4] = most
+
+
+@njit(cache=True, fastmath=FASTMATH, error_model="numpy")
+def gather(tree, emitters, bound, options, near_buf, near_idx, far_buf):
+    """Interaction lists of one bucket (centre, radius ``bound``): walk the tree once for
+    all its receivers.
+
+    At node q (centre c, bounding radius b, ``dmin = |c - centre| - radius``):
+
+    - skip the subtree when ``dmin - b > max_distance``, or when its weighted area is 0
+      and there is no near field (cells have weights of their own);
+    - use it whole (append to the far list, with the moments of the weight level of its
+      distance from the bucket's centre) when ``dmin > 0``, ``dmin^2 >= open_d2`` (far
+      enough for its size and outside its near-field reach for every receiver),
+      ``dmin + 2 radius + b <= max_distance`` and ``dmin - b >= inner`` (entirely
+      outside every receiver's inner radius);
+    - else copy a leaf's emitters to the near list, or descend to q + 1.
+
+    Without ``leveled`` (every weight level equal) only level 0 is copied.
+
+    Near-list emitters that may be in the near field of some receiver of the bucket
+    (``r^2 < near A`` for ``r`` = their distance to the bucket's sphere, with slack for
+    float32 rounding) are also listed as cell candidates.
+
+    Returns
+    -------
+    n_near, n_cand, n_far : int
+        Entries written: ``near_buf[:, :n_near]`` and ``near_idx[0, :n_near]`` (vertex
+        index), ``near_idx[1, :n_cand]`` (candidates' positions in the near list),
+        ``far_buf[:, :n_far]``.
+    """
+    skip, start, stop, nodes, moments = tree
+    rows, index, weights = emitters
+    max_distance, near, weight_r2, leveled = options
+    bx = bound[0]
+    by = bound[1]
+    bz = bound[2]
+    rb = bound[3]
+    inner = bound[4]
+    n_nodes = skip.shape[0]
+    levels = weights.shape[1] if leveled else 1
+    n_near = 0
+    n_cand = 0
+    n_far = 0
+    node = 0
+    while node < n_nodes:
+        nxt = skip[node]
+        if near <= 0.0 and nodes[node, N_WAREA] <= 0.0:
+            node = nxt
+            continue
+        dx = nodes[node, N_X] - bx
+        dy = nodes[node, N_Y] - by
+        dz = nodes[node, N_Z] - bz
+        b = nodes[node, N_RADIUS]
+        d2 = dx * dx + dy * dy + dz * dz
+        dmin = np.sqrt(d2) - rb
+        if dmin - b > max_distance:
+            node = nxt
+        elif (
+            dmin > 0.0
+            and dmin * dmin >= nodes[node, N_OPEN_D2]
+            and dmin + 2.0 * rb + b <= max_distance
+            and dmin - b >= inner
+        ):
+            lv = level_of(d2, weight_r2) if leveled else 0
+            far_buf[F_X, n_far] = nodes[node, N_X]
+            far_buf[F_Y, n_far] = nodes[node, N_Y]
+            far_buf[F_Z, n_far] = nodes[node, N_Z]
+            far_buf[F_WA, n_far] = moments[node, lv, M_WA]
+            far_buf[F_NX, n_far] = moments[node, lv, M_NX]
+            far_buf[F_NY, n_far] = moments[node, lv, M_NY]
+            far_buf[F_NZ, n_far] = moments[node, lv, M_NZ]
+            far_buf[F_TXX, n_far] = moments[node, lv, M_TXX]
+            far_buf[F_TYY, n_far] = moments[node, lv, M_TYY]
+            far_buf[F_TZZ, n_far] = moments[node, lv, M_TZZ]
+            far_buf[F_TXY, n_far] = moments[node, lv, M_TXY]
+            far_buf[F_TXZ, n_far] = moments[node, lv, M_TXZ]
+            far_buf[F_TYZ, n_far] = moments[node, lv, M_TYZ]
+            n_far += 1
+            node = nxt
+        elif nxt == node + 1:
+            for j in range(start[node], stop[node]):
+                near_buf[S_X, n_near] = rows[j, E_X]
+                near_buf[S_Y, n_near] = rows[j, E_Y]
+                near_buf[S_Z, n_near] = rows[j, E_Z]
+                near_buf[S_MX, n_near] = rows[j, E_MX]
+                near_buf[S_MY, n_near] = rows[j, E_MY]
+                near_buf[S_MZ, n_near] = rows[j, E_MZ]
+                near_buf[S_A, n_near] = rows[j, E_AREA]
+                for lv in range(levels):
+                    near_buf[S_WA + lv, n_near] = weights[j, lv] * rows[j, E_AREA]
+                near_idx[0, n_near] = index[j]
+                if near > 0.0:
+                    ex = rows[j, E_X] - bx
+                    ey = rows[j, E_Y] - by
+                    ez = rows[j, E_Z] - bz
+                    gap = np.sqrt(ex * ex + ey * ey + ez * ez) - rb - CAND_SLACK
+                    if gap <= 0.0 or gap * gap < near * rows[j, E_AREA] * (1.0 + CAND_SLACK):
+                        near_idx[1, n_cand] = n_near
+                        n_cand += 1
+                n_near += 1
+            node = nxt
+        else:
+            node += 1
+    return n_near, n_cand, n_far
+
+
+@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+def far_pair(far, j, dx, dy, dz, d2, nx, ny, nz, has_normal, measure):
+    """(front, back) of far-list node j: a point emitter with weighted projected area P
+    toward the receiver, i.e. the disk term without the ``+ A`` regularisation:
+    ``P g / (pi d^2)`` (cosine), ``P g / (2 pi d^2)`` (uniform). The regularisation is
+    exact only on a disk's axis; far clusters sit mostly off-axis, where it biases them
+    low.
+
+    ``P`` for direction ``u`` (node - receiver) with ``s = -N.u``:
+    ``max((sqrt(A_w u^T kappa^2 T u) + s) / 2, s, 0)`` toward the front sides and the
+    same with ``-s`` toward the back sides (Cauchy-Schwarz on ``sum w A |m.u|``; exact
+    for flat clusters and two-sided sheets, exact on average for isotropic normals).
+    """
+    s = -(far[F_NX, j] * dx + far[F_NY, j] * dy + far[F_NZ, j] * dz)
+    quad = (
+        far[F_TXX, j] * dx * dx
+        + far[F_TYY, j] * dy * dy
+        + far[F_TZZ, j] * dz * dz
+        + np.float32(2.0)
+        * (far[F_TXY, j] * dx * dy + far[F_TXZ, j] * dx * dz + far[F_TYZ, j] * dy * dz)
+    )
+    spread = np.sqrt(max(far[F_WA, j] * quad, ZERO32))
+    nd = nx * dx + ny * dy + nz * dz
+    if measure == MEASURE_COSINE and has_normal:
+        c = max(nd, ZERO32) / (PI32 * d2 * d2)
+    else:
+        d = np.sqrt(d2)
+        if measure == MEASURE_COSINE:
+            c = np.float32(NO_NORMAL_COSINE) / (PI32 * d2 * d)
+        else:
+            if has_normal:
+                g = min(max(np.float32(4.0) * nd / d, ZERO32), np.float32(1.0))
+            else:
+                g = np.float32(NO_NORMAL_UNIFORM)
+            c = g / (np.float32(2.0) * PI32 * d2 * d)
+    return c * max(HALF32 * (spread + s), max(s, ZERO32)), c * max(HALF32 * (spread - s), max(-s, ZERO32))
+
+
+@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+def far_sums(far, n_far, px, py, pz, nx, ny, nz, has_normal, measure):
+    """(front, back) of the far list at one receiver (:func:`far_pair`); vectorises."""
+    front = ZERO32
+    back = ZERO32
+    for j in range(n_far):
+        dx = far[F_X, j] - px
+        dy = far[F_Y, j] - py
+        dz = far[F_Z, j] - pz
+        f, b = far_pair(far, j, dx, dy, dz, dx * dx + dy * dy + dz * dz, nx, ny, nz, has_normal, measure)
+        front += f
+        back += b
+    return front, back
+
+
+@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+def level_weight(near, j, r2, t0, t1, t2, t3, t4, t5):
+    """Area x weight of near-list emitter j at the weight level of ``r2`` (the N_BINS
+    ascending float32 thresholds t0..t5). Written out as a chain of selects on scalars
+    so the caller's loop still vectorises (a loop over the levels, or reads of a
+    threshold array inside the loop, do not)."""
+    wa = near[S_WA, j]
+    wa = near[S_WA + 1, j] if r2 >= t0 else wa
+    wa = near[S_WA + 2, j] if r2 >= t1 else wa
+    wa = near[S_WA + 3, j] if r2 >= t2 else wa
+    wa = near[S_WA + 4, j] if r2 >= t3 else wa
+    wa = near[S_WA + 5, j] if r2 >= t4 else wa
+    wa = near[S_WA + 6, j] if r2 >= t5 else wa
+    return wa
+
+
+@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+def near_disk_sums(near, n_near, px, py, pz, nx, ny, nz, has_normal, measure, max_d2, min_d2, wr2,
+                   leveled):
+    """(front, back) of the near list's disks at one receiver, near-field ones included
+    (the caller swaps those for their cells).
+
+    Skips coincident disks, disks beyond the maximum distance and inside the inner
+    radius with selects, not branches. The receiver's own disk needs no test of the
+    index: the receiver sits above its vertex along n, so its own disk and every disk at
+    the same position have ``n.d < 0`` and a zero term (a receiver without a normal sits
+    on its vertex: coincident). The loop vectorises (16 float32 lanes with AVX-512).
+    ``leveled``: the weights differ between levels (passes >= 2).
+    """
+    front = ZERO32
+    back = ZERO32
+    coincident = np.float32(COINCIDENT_REL)
+    t0, t1, t2, t3, t4, t5 = wr2[0], wr2[1], wr2[2], wr2[3], wr2[4], wr2[5]
+    if measure == MEASURE_COSINE and has_normal and not leveled:
+        # pass 1: one weight for every level
+        for j in range(n_near):
+            dx = near[S_X, j] - px
+            dy = near[S_Y, j] - py
+            dz = near[S_Z, j] - pz
+            r2 = dx * dx + dy * dy + dz * dz
+            a = near[S_A, j]
+            e = -(near[S_MX, j] * dx + near[S_MY, j] * dy + near[S_MZ, j] * dz)
+            g = max(nx * dx + ny * dy + nz * dz, ZERO32)
+            c = near[S_WA, j] * g / (r2 * (PI32 * r2 + a))
+            c = ZERO32 if (r2 <= coincident * a) | (r2 > max_d2) | (r2 < min_d2) else c
+            front += c * max(e, ZERO32)
+            back += c * max(-e, ZERO32)
+        return front, back
+    if measure == MEASURE_COSINE and has_normal:
+        # disk_pair32 spelled out: a branch inside the loop would stop vectorisation
+        for j in range(n_near):
+            dx = near[S_X, j] - px
+            dy = near[S_Y, j] - py
+            dz = near[S_Z, j] - pz
+            r2 = dx * dx + dy * dy + dz * dz
+            a = near[S_A, j]
+            wa = level_weight(near, j, r2, t0, t1, t2, t3, t4, t5)
+            e = -(near[S_MX, j] * dx + near[S_MY, j] * dy + near[S_MZ, j] * dz)
+            g = max(nx * dx + ny * dy + nz * dz, ZERO32)
+            c = wa * g / (r2 * (PI32 * r2 + a))
+            c = ZERO32 if (r2 <= coincident * a) | (r2 > max_d2) | (r2 < min_d2) else c
+            front += c * max(e, ZERO32)
+            back += c * max(-e, ZERO32)
+        return front, back
+    for j in range(n_near):
+        dx = near[S_X, j] - px
+        dy = near[S_Y, j] - py
+        dz = near[S_Z, j] - pz
+        r2 = dx * dx + dy * dy + dz * dz
+        a = near[S_A, j]
+        if r2 <= coincident * a or r2 > max_d2 or r2 < min_d2:
+            continue
+        wa = level_weight(near, j, r2, t0, t1, t2, t3, t4, t5)
+        f, b = disk_pair32(
+            dx, dy, dz, r2, near[S_MX, j], near[S_MY, j], near[S_MZ, j], wa, a, nx, ny, nz,
+            has_normal, measure,
+        )
+        front += f
+        back += b
+    return front, back
+
+
+@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+def binned_sums(near, n_near, far, n_far, px, py, pz, nx, ny, nz, has_normal, measure, max_d2,
+                min_d2, wr2, br2, leveled, acc):
+    """Like :func:`near_disk_sums` plus :func:`far_sums`, but cumulative by distance:
+    ``acc[side, b] += term`` for every bin b with ``r^2 < br2[b]`` (the last bin takes
+    everything; far nodes by their centre's distance). Twelve accumulators spelled out
+    and the cosine case in a loop of its own, so it vectorises."""
+    coincident = np.float32(COINCIDENT_REL)
+    t0, t1, t2, t3, t4, t5 = wr2[0], wr2[1], wr2[2], wr2[3], wr2[4], wr2[5]
+    r0, r1, r2_, r3, r4 = br2[0], br2[1], br2[2], br2[3], br2[4]
+    f0 = ZERO32
+    f1 = ZERO32
+    f2 = ZERO32
+    f3 = ZERO32
+    f4 = ZERO32
+    f5 = ZERO32
+    b0 = ZERO32
+    b1 = ZERO32
+    b2 = ZERO32
+    b3 = ZERO32
+    b4 = ZERO32
+    b5 = ZERO32
+    if measure == MEASURE_COSINE and has_normal:
+        for j in range(n_near):
+            dx = near[S_X, j] - px
+            dy = near[S_Y, j] - py
+            dz = near[S_Z, j] - pz
+            d2 = dx * dx + dy * dy + dz * dz
+            a = near[S_A, j]
+            # thresholds are inf without levels: level 0, and the loads are never used
+            wa = level_weight(near, j, d2, t0, t1, t2, t3, t4, t5) if leveled else near[S_WA, j]
+            e = -(near[S_MX, j] * dx + near[S_MY, j] * dy + near[S_MZ, j] * dz)
+            c = wa * max(nx * dx + ny * dy + nz * dz, ZERO32) / (d2 * (PI32 * d2 + a))
+            c = ZERO32 if (d2 <= coincident * a) | (d2 > max_d2) | (d2 < min_d2) else c
+            f = c * max(e, ZERO32)
+            b = c * max(-e, ZERO32)
+            m = np.float32(d2 < r0)
+            f0 += f * m
+            b0 += b * m
+            m = np.float32(d2 < r1)
+            f1 += f * m
+            b1 += b * m
+            m = np.float32(d2 < r2_)
+            f2 += f * m
+            b2 += b * m
+            m = np.float32(d2 < r3)
+            f3 += f * m
+            b3 += b * m
+            m = np.float32(d2 < r4)
+            f4 += f * m
+            b4 += b * m
+            f5 += f
+            b5 += b
+    else:
+        for j in range(n_near):
+            dx = near[S_X, j] - px
+            dy = near[S_Y, j] - py
+            dz = near[S_Z, j] - pz
+            d2 = dx * dx + dy * dy + dz * dz
+            a = near[S_A, j]
+            if d2 <= coincident * a or d2 > max_d2 or d2 < min_d2:
+                continue
+            wa = level_weight(near, j, d2, t0, t1, t2, t3, t4, t5)
+            f, b = disk_pair32(
+                dx, dy, dz, d2, near[S_MX, j], near[S_MY, j], near[S_MZ, j], wa, a, nx, ny, nz,
+                has_normal, measure,
+            )
+            m = np.float32(d2 < r0)
+            f0 += f * m
+            b0 += b * m
+            m = np.float32(d2 < r1)
+            f1 += f * m
+            b1 += b * m
+            m = np.float32(d2 < r2_)
+            f2 += f * m
+            b2 += b * m
+            m = np.float32(d2 < r3)
+            f3 += f * m
+            b3 += b * m
+            m = np.float32(d2 < r4)
+            f4 += f * m
+            b4 += b * m
+            f5 += f
+            b5 += b
+    for j in range(n_far):
+        dx = far[F_X, j] - px
+        dy = far[F_Y, j] - py
+        dz = far[F_Z, j] - pz
+        d2 = dx * dx + dy * dy + dz * dz
+        f, b = far_pair(far, j, dx, dy, dz, d2, nx, ny, nz, has_normal, measure)
+        m = np.float32(d2 < r0)
+        f0 += f * m
+        b0 += b * m
+        m = np.float32(d2 < r1)
+        f1 += f * m
+        b1 += b * m
+        m = np.float32(d2 < r2_)
+        f2 += f * m
+        b2 += b * m
+        m = np.float32(d2 < r3)
+        f3 += f * m
+        b3 += b * m
+        m = np.float32(d2 < r4)
+        f4 += f * m
+        b4 += b * m
+        f5 += f
+        b5 += b
+    acc[0, 0] += f0
+    acc[0, 1] += f1
+    acc[0, 2] += f2
+    acc[0, 3] += f3
+    acc[0, 4] += f4
+    acc[0, 5] += f5
+    acc[1, 0] += b0
+    acc[1, 1] += b1
+    acc[1, 2] += b2
+    acc[1, 3] += b3
+    acc[1, 4] += b4
+    acc[1, 5] += b5
+
+
+@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+def add_cumulative(acc, f, b, r2, br2, binned):
+    """``acc[:, k] += (f, b)`` for every bin k the distance ``r2`` falls inside (all bins
+    from its own on), or the last bin only when not ``binned``."""
+    last = br2.shape[0] - 1
+    k = min(level_of(r2, br2), last) if binned else last
+    for kk in range(k, last + 1):
+        acc[0, kk] += f
+        acc[1, kk] += b
+
+
+@njit(cache=True, fastmath=FASTMATH, error_model="numpy", parallel=True)
+def hierarchy_pass(tree, emitters, receivers, near_field, buckets, span, options, out):
+    """Tree sums for the receivers of buckets ``span[0]:span[1]``: like
+    ``bunnell.brute_force_pass``, far clusters count as one emitter.
+
+    Each bucket (a few nearby receivers) walks the tree once (:func:`gather`); then each
+    of its receivers sums the far list (:func:`far_sums`), the near list's disks
+    (:func:`near_disk_sums`) and, for the near list's emitters with ``r^2 < near A``,
+    swaps the disk for its barycentric cell in float64 (``polygon.cell_terms``). The
+    lists are float32 rows in per-thread scratch; each receiver's result depends only
+    on its bucket, so the output is identical for any thread count.
+
+    Parameters
+    ----------
+    tree : tuple
+        ``(skip, start, stop, nodes, moments)`` from ``aobake.kernels.hierarchy`` (nodes
+        float32; moments (m, N_LEVELS, MOMENT_COLS) float32, refit for this pass).
+    emitters : tuple
+        ``(rows (k, EMITTER_COLS) float32, index (k,) int64, weights (k, N_LEVELS)
+        float32)`` in tree order.
+    receivers : tuple
+        ``(points (n, 3), normals (n, 3), inner (n,))`` float64 (see
+        ``bunnell.brute_force_pass``).
+    near_field : tuple
+        ``(positions (n, 3), weights (n,), corner_start, corners, cache (n, 2, N_BINS),
+        cache_mode)``: float64 vertex positions, the cells' pass weights, the cell
+        corners, and a cache of each receiver's cell sums (cumulative by distance bin)
+        for passes whose cell weights do not change: mode 0 ignores it, 1 writes it,
+        2 reads it instead of evaluating the cells again.
+    buckets : tuple
+        ``(order (n,), bucket_start (nb + 1,), bounds (nb, 5), near_buf, near_idx,
+        far_buf)``: receivers in bucket order, bucket ranges and bounds
+        (:func:`bucket_bounds`), and scratch ``(T, near_rows, k)`` float32,
+        ``(T, 2, k)`` int64, ``(T, FAR_ROWS, m)`` float32 for T >= the number of numba
+        threads.
+    span : tuple
+        ``(b0, b1)`` buckets to compute.
+    options : tuple
+        ``(measure, max_distance, near, binned, bin_r2, weight_r2, leveled)`` as in
+        ``bunnell.brute_force_pass``; ``leveled``: the weights differ between levels.
+    out : (n, 2, N_BINS) float64
+        Unsaturated (front, back) sums, cumulative by distance bin when ``binned``
+        (else only the last bin, the total, is written); each receiver writes its own
+        row.
+    """
+    positions, cell_weights, corner_start, corners, cache, cache_mode = near_field
+    points, normals, inner = receivers
+    order, bucket_start, bounds, near_buf, near_idx, far_buf = buckets
+    measure, max_distance, near, binned, bin_r2, weight_r2, leveled = options
+    max_d2 = np.float32(min(max_distance * max_distance, 3.0e38))
+    # without levels only level 0 is gathered: thresholds no distance reaches
+    wr2 = weight_r2.astype(np.float32) if leveled else np.full(weight_r2.shape[0], np.inf, np.float32)
+    br2 = bin_r2.astype(np.float32)
+    last = bin_r2.shape[0] - 1
+    b0, b1 = span
+    for bk in prange(b0, b1):
+        tid = numba.get_thread_id()
+        nb = near_buf[tid]
+        ni = near_idx[tid]
+        fb = far_buf[tid]
+        quad = np.empty((4, 3))
+        acc = np.zeros((2, last + 1))
+        n_near, n_cand, n_far = gather(
+            tree, emitters, bounds[bk], (max_distance, near, weight_r2, leveled), nb, ni, fb
+        )
+        for q in range(bucket_start[bk], bucket_start[bk + 1]):
+            i = order[q]
+            px = points[i, 0]
+            py = points[i, 1]
+            pz = points[i, 2]
+            nx = normals[i, 0]
+            ny = normals[i, 1]
+            nz = normals[i, 2]
+            has_normal = nx * nx + ny * ny + nz * nz > 0.0
+            min_d2 = inner[i] * inner[i]
+            px32 = np.float32(px)
+            py32 = np.float32(py)
+            pz32 = np.float32(pz)
+            nx32 = np.float32(nx)
+            ny32 = np.float32(ny)
+            nz32 = np.float32(nz)
+            acc[:] = 0.0
+            if binned:
+                binned_sums(nb, n_near, fb, n_far, px32, py32, pz32, nx32, ny32, nz32, has_normal,
+                            measure, max_d2, np.float32(min_d2), wr2, br2, leveled, acc)
+            else:
+                f1, b1_ = far_sums(fb, n_far, px32, py32, pz32, nx32, ny32, nz32, has_normal, measure)
+                f2, b2 = near_disk_sums(
+                    nb, n_near, px32, py32, pz32, nx32, ny32, nz32, has_normal, measure, max_d2,
+                    np.float32(min_d2), wr2, leveled,
+                )
+                acc[0, last] = np.float64(f1) + np.float64(f2)
+                acc[1, last] = np.float64(b1_) + np.float64(b2)
+            if has_normal and near > 0.0:
+                # near-field emitters: swap the disk (as summed above) for the cell
+                for u in range(n_cand):
+                    t = ni[1, u]
+                    j = ni[0, t]
+                    if j == i:
+                        continue
+                    if not is_near(nb[S_X, t], nb[S_Y, t], nb[S_Z, t], nb[S_A, t], px, py, pz, near):
+                        continue
+                    dx = positions[j, 0] - px
+                    dy = positions[j, 1] - py
+                    dz = positions[j, 2] - pz
+                    r2_64 = dx * dx + dy * dy + dz * dz
+                    if r2_64 > max_distance * max_distance or r2_64 < min_d2:
+                        continue
+                    ex = nb[S_X, t] - px32
+                    ey = nb[S_Y, t] - py32
+                    ez = nb[S_Z, t] - pz32
+                    r2 = ex * ex + ey * ey + ez * ez
+                    a = nb[S_A, t]
+                    if r2 <= np.float32(COINCIDENT_REL) * a or r2 > max_d2 or r2 < np.float32(min_d2):
+                        df = ZERO32
+                        db = ZERO32
+                    else:
+                        df, db = disk_pair32(
+                            ex, ey, ez, r2, nb[S_MX, t], nb[S_MY, t], nb[S_MZ, t],
+                            level_weight(nb, t, r2, wr2[0], wr2[1], wr2[2], wr2[3], wr2[4], wr2[5]),
+                            a, nx32, ny32, nz32, has_normal, measure,
+                        )
+                    if cache_mode == 2:
+                        add_cumulative(acc, -np.float64(df), -np.float64(db), r2, br2, binned)
+                        continue
+                    f, bck = cell_terms(
+                        positions, corner_start, corners, j, px, py, pz, nx, ny, nz, measure, quad
+                    )
+                    f *= cell_weights[j]
+                    bck *= cell_weights[j]
+                    add_cumulative(acc, f - np.float64(df), bck - np.float64(db), r2, br2, binned)
+                    if cache_mode == 1:
+                        add_cumulative(cache[i], f, bck, r2, br2, True)
+                if cache_mode == 2:
+                    for k in range(last + 1) if binned else range(last, last + 1):
+                        acc[0, k] += cache[i, 0, k]
+                        acc[1, k] += cache[i, 1, k]
+            for k in range(last + 1):
+                # the swap can leave -1 ulp where the sum is 0
+                out[i, 0, k] = max(acc[0, k], 0.0)
+                out[i, 1, k] = max(acc[1, k], 0.0)
