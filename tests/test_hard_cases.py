@@ -11,6 +11,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from aobake.bunnell import bunnell_ao
+from aobake.field import field_ao, fit_field, rigid_transform
+from aobake.hybrid import hybrid_ao
 from aobake.mesh import surface_from_arrays
 from aobake.raytrace import embree_ao
 
@@ -21,7 +23,18 @@ def _embree(s, **kw):
     return embree_ao(s, n_rays=kw.pop("n_rays", 64), **kw).ao
 
 
-METHODS = {"embree": _embree, "bunnell": lambda s: bunnell_ao(s)}
+def _icosphere_arrays(radius):
+    import trimesh
+
+    m = trimesh.creation.icosphere(subdivisions=2, radius=radius)
+    return m.vertices, m.faces
+
+
+METHODS = {
+    "embree": _embree,
+    "bunnell": lambda s: bunnell_ao(s),
+    "hybrid": lambda s: hybrid_ao(s).ao,
+}
 
 
 @pytest.fixture(scope="module")
@@ -117,4 +130,22 @@ def test_random_small_meshes(mesh, method):
     positions, faces = mesh
     s = surface_from_arrays(np.array(positions), np.array(faces))
     ao = _run(method, s) if method != "embree" else embree_ao(s, n_rays=16).ao
+    assert np.isfinite(ao).all() and ao.min() >= 0 and ao.max() <= 1
+
+
+@pytest.mark.parametrize("case", sorted(hard_cases.CASES))
+def test_field_on_hard_receivers_is_finite(surfaces, case):
+    # An AO field evaluated on every hard receiver (a sphere at its centre, a field fitted
+    # at the receiver's scale): finite, in [0, 1], no floating-point warnings.
+    s = surfaces[case]
+    lo, hi = s.positions.min(axis=0), s.positions.max(axis=0)
+    size = float(np.linalg.norm(hi - lo))
+    ball = surface_from_arrays(*_icosphere_arrays(0.05 * size))
+    f = fit_field(ball, resolution=4, radial_samples=6, raster_size=8)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with np.errstate(divide="raise", over="raise", invalid="raise", under="ignore"):
+            ao = field_ao(
+                f, s.positions, s.normals, transform=rigid_transform(0.5 * (lo + hi), (0, 0, 0))
+            )
     assert np.isfinite(ao).all() and ao.min() >= 0 and ao.max() <= 1
