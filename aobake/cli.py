@@ -342,10 +342,15 @@ def compare(reference, candidate, threshold, worst, json_path, plot_path, render
 @click.option("--repeats", type=click.IntRange(min=1), default=3, show_default=True, help="Time each setting this often (best).")
 @click.option("--no-plot", is_flag=True, help="Skip pareto.png (no matplotlib needed).")
 @click.option(
-    "--no-fields", is_flag=True, help="Skip the AO-field rows (MESH as an occluder over a ground grid)."
+    "--no-fields",
+    is_flag=True,
+    help="Skip the AO-field rows (MESH as one rigid occluder over a ground grid; skip them for scenes with a floor).",
+)
+@click.option(
+    "--up", type=click.Choice(["Y", "Z"]), default=None, help="Up axis for the field rows' ground [default: the file's, else Y]."
 )
 @common_options
-def sweep(mesh, out_dir, reference_rays, repeats, no_plot, no_fields, seed, threads, quiet):
+def sweep(mesh, out_dir, reference_rays, repeats, no_plot, no_fields, up, seed, threads, quiet):
     """What accuracy costs in time: bake MESH over a grid of methods and settings.
 
     Each setting is timed and compared with a high-ray Embree reference (cached in
@@ -369,6 +374,7 @@ def sweep(mesh, out_dir, reference_rays, repeats, no_plot, no_fields, seed, thre
         threads=threads,
         repeats=repeats,
         fields=not no_fields,
+        up=up,
         plot=not no_plot,
         progress=make_progress(quiet),
         on_row=on_row,

@@ -290,6 +290,7 @@ def sweep_file(
     repeats: int = 1,
     methods: Sequence[str] | None = None,
     fields: bool = True,
+    up: str | None = None,
     plot: bool = True,
     progress: Progress | None = None,
     on_row=None,
@@ -343,7 +344,8 @@ def sweep_file(
     grid = sweep.default_grid(methods or METHODS)
     rows = sweep.run_sweep(compute, reference, grid, repeats=repeats, on_row=on_row)
     if fields:  # a different scene (the ground under the mesh): its own Pareto front
-        rows = rows + _field_sweep(surface, out_dir, key, reference_rays, seed, threads, repeats, on_row)
+        up = up or surface.metadata.get("up_axis") or DEFAULT_UP_AXIS
+        rows = rows + _field_sweep(surface, out_dir, key, up, reference_rays, seed, threads, repeats, on_row)
     meta = {
         "source": Path(str(source)).name,
         "n_vertices": surface.n_vertices,
@@ -517,9 +519,9 @@ def _apply_fields(surface: Surface, ao: AOArray, placed: list, threads) -> tuple
     return np.asarray(ao) * result.ao, result.skipped
 
 
-def _field_sweep(surface, out_dir, key, reference_rays, seed, threads, repeats, on_row):
+def _field_sweep(surface, out_dir, key, up_axis, reference_rays, seed, threads, repeats, on_row):
     """Rows for AO fields: ``surface`` as a rigid occluder on a ground grid (3 bounding
-    radii each way, at its lowest point along the up axis: the file's, else Y), scored
+    radii each way, at its lowest point along ``up_axis``), scored
     on the ground vertices against Embree AO of occluder + ground."""
     from . import sweep
     from .field import field_ao, fit_field
@@ -527,7 +529,7 @@ def _field_sweep(surface, out_dir, key, reference_rays, seed, threads, repeats, 
     from .mesh import surface_from_arrays
     from .raytrace import embree_ao
 
-    up = 1 if (surface.metadata.get("up_axis") or "Y").upper() == "Y" else 2
+    up = 1 if up_axis.upper() == "Y" else 2
     lo, hi = surface.positions.min(axis=0), surface.positions.max(axis=0)
     centre = 0.5 * (lo + hi)
     radius = 0.5 * float(np.linalg.norm(hi - lo))
@@ -556,7 +558,7 @@ def _field_sweep(surface, out_dir, key, reference_rays, seed, threads, repeats, 
         np.vstack([surface.faces, tri + n]),
         np.vstack([surface.normals, g_normals]),
     )
-    cache = out_dir / f"reference_ground_{key}_rays{reference_rays}_seed{seed}.npy"
+    cache = out_dir / f"reference_ground{up_axis}_{key}_rays{reference_rays}_seed{seed}.npy"
     if cache.exists():
         reference = np.load(cache, allow_pickle=False)
     else:
