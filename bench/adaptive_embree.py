@@ -14,10 +14,10 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
 
-import shapes  # noqa: E402
-
 from aobake.raytrace import embree_ao  # noqa: E402
 from aobake.readers import load_mesh  # noqa: E402
+
+import shapes  # noqa: E402
 
 SETTINGS = [
     {"n_rays": 64},

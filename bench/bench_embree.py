@@ -35,8 +35,6 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-import common as C  # noqa: E402
-
 from aobake.constants import CHUNK_RAYS, INFINITE_DISTANCE  # noqa: E402
 from aobake.kernels import rays as _k  # noqa: E402
 from aobake.raytrace import (  # noqa: E402
@@ -48,6 +46,8 @@ from aobake.raytrace import (  # noqa: E402
     shell_labels,
 )
 from aobake.sampling import sample_directions  # noqa: E402
+
+import common as C  # noqa: E402
 
 RUN_SEED = 0
 #: The reference uses another scrambling key: with the same key, the N-ray estimates

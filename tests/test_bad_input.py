@@ -15,8 +15,9 @@ import pytest
 import trimesh
 from click.testing import CliRunner
 
-import shapes
 from aobake.cli import main
+
+import shapes
 
 ASCII_HEADER = (
     "ply\nformat ascii 1.0\nelement vertex {n}\nproperty float x\nproperty float y\n"

@@ -11,7 +11,6 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-import shapes
 from aobake.errors import InputError
 from aobake.field import (
     AOField,
@@ -27,6 +26,8 @@ from aobake.field import (
 )
 from aobake.mesh import surface_from_arrays
 from aobake.raytrace import embree_ao
+
+import shapes
 
 # --------------------------------------------------------------------------- cap integral
 

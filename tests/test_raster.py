@@ -8,9 +8,10 @@ import numpy as np
 import pytest
 import trimesh
 
-import shapes
 from aobake.field import embree_occlusion
 from aobake.raster import cube_texels, raster_occlusion
+
+import shapes
 
 
 def sphere_omega(radius, r):
