@@ -173,7 +173,22 @@ def _own_side(surface: Surface, vertices, points, planes) -> np.ndarray:
 def contact_origins(
     surface: Surface, scene: Scene, offsets: FloatArray, edges: FloatArray | None = None
 ) -> tuple[np.ndarray, int]:
-    """Offset ray origins (float32, local frame) that stay on the open side at contacts.
+    """Offset ray origins (float32, in ``scene``'s recentred frame); see :func:`contact_points`."""
+    points, contacts = contact_points(surface, scene.local, scene.center, offsets, edges)
+    return points.astype(np.float32), contacts
+
+
+def contact_points(
+    surface: Surface,
+    local: FloatArray,
+    center: FloatArray,
+    offsets: FloatArray,
+    edges: FloatArray | None = None,
+) -> tuple[FloatArray, int]:
+    """Points offset along the normal that stay on the open side at contacts.
+
+    ``local`` are the surface positions minus ``center`` (float64); the result is in
+    the same frame. Used for ray origins and for the disk method's receiver points.
 
     Each origin is p + delta n. Where another shell (a connected component: an object
     resting on a floor, touching it or sunk slightly into it) passes near p along the
@@ -193,21 +208,21 @@ def contact_origins(
 
     Returns
     -------
-    origins : (n, 3) float32
+    points : (n, 3) float64
     contacts : int
-        Number of vertices whose origin was moved.
+        Number of vertices whose point was moved.
     """
-    p = scene.local
+    p = np.asarray(local, dtype=np.float64)
     n = surface.normals
     origins = p + offsets[:, None] * n
     if surface.n_faces == 0:
-        return origins.astype(np.float32), 0
+        return origins, 0
     shell = shell_labels(surface)
     face_shell = shell[surface.faces[:, 0]]
     sizes = np.bincount(face_shell, minlength=shell.max() + 1)
     with_faces = np.flatnonzero(sizes > 0)
     if with_faces.size < 2:
-        return origins.astype(np.float32), 0
+        return origins, 0
     if edges is None:
         edges = _topo.longest_edges(surface.positions, surface.faces)
     n_groups = min(with_faces.size, MAX_CONTACT_GROUPS)
@@ -251,7 +266,7 @@ def contact_origins(
         rows, m = rows[ok], m[ok] / m_len[ok, None]
         v = idx[rows]
         x = origins[v] - hit["tfar"][rows, None].astype(np.float64) * n[v]
-        side = _own_side(surface, v, x + scene.center, m)
+        side = _own_side(surface, v, x + center, m)
         keep = side != 0
         v, x, m = v[keep], x[keep], m[keep] * side[keep, None]  # m now points to the own side
         dot = np.einsum("ij,ij->i", n[v], m)
@@ -261,7 +276,7 @@ def contact_origins(
         away = n[v] - 2.0 * np.minimum(dot, 0.0)[:, None] * m
         origins[v] = p[v] + (sunk + offsets[v])[:, None] * m + offsets[v, None] * away
         moved[v] = True
-    return origins.astype(np.float32), int(moved.sum())
+    return origins, int(moved.sum())
 
 
 def _rounds(n_rays: int, adaptive: bool) -> list[tuple[int, int]]:
