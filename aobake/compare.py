@@ -12,8 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import AobakeError, InputError
-from .io_common import atomic_write
+from .errors import InputError
+from .io_common import atomic_write, pyplot
 
 
 @dataclass(frozen=True)
@@ -177,13 +177,7 @@ def plot_compare(a, b, path: str | Path, *, names: tuple[str, str] = ("a", "b"))
     AobakeError
         matplotlib is not installed (``pip install 'aobake[plot]'``).
     """
-    try:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError as exc:
-        raise AobakeError("plotting needs matplotlib: pip install 'aobake[plot]'") from exc
+    plt = pyplot()
     a = np.asarray(a, dtype=np.float64)
     b = np.asarray(b, dtype=np.float64)
     fig, (h, s) = plt.subplots(1, 2, figsize=(10, 4.2))

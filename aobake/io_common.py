@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import FormatError, NumericalError, OutputError
+from .errors import AobakeError, FormatError, NumericalError, OutputError
 
 #: Output suffixes and the writer family that handles them.
 BAKE_SUFFIXES = {".ply": "ply", ".usda": "usd", ".usdc": "usd", ".usd": "usd"}
@@ -110,3 +110,17 @@ def atomic_write(path: str | Path) -> Iterator[Path]:
         with contextlib.suppress(OSError):
             tmp.unlink()
         raise
+
+
+def pyplot():
+    """matplotlib.pyplot on the non-interactive Agg backend, or :class:`AobakeError`
+    naming the extra to install (matplotlib is optional)."""
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+        import matplotlib.ticker  # noqa: F401  (plots set tick formatters)
+    except ImportError as exc:
+        raise AobakeError("plotting needs matplotlib: pip install 'aobake[plot]'") from exc
+    return plt

@@ -171,15 +171,15 @@ def vertex_areas(positions: FloatArray, faces: IndexArray) -> FloatArray:
 def vertex_edge_lengths(positions: FloatArray, faces: IndexArray) -> FloatArray:
     """Longest edge touching each vertex (zero for unreferenced vertices).
 
-    Used to scale ray-origin offsets to the local triangle size.
+    Scales ray-origin offsets and near-field distances to the local triangle size
+    (one pass over the faces in ``kernels.topology.longest_edges``).
     """
-    out = np.zeros(positions.shape[0])
-    for k in range(3):
-        i, j = faces[:, k], faces[:, (k + 1) % 3]
-        length = np.linalg.norm(positions[j] - positions[i], axis=1)
-        np.maximum.at(out, i, length)
-        np.maximum.at(out, j, length)
-    return out
+    from .kernels.topology import longest_edges  # numba only when needed
+
+    return longest_edges(
+        np.ascontiguousarray(positions, dtype=np.float64),
+        np.ascontiguousarray(faces, dtype=np.int64),
+    )
 
 
 def surface_from_arrays(
@@ -227,9 +227,7 @@ def surface_from_arrays(
             raise InputError(
                 source, f"normals have shape {normals.shape}, positions {positions.shape}"
             )
-    raw = RawPart(
-        name, positions, faces, normals, np.full(len(faces), 3), faces.reshape(-1).copy()
-    )
+    raw = RawPart(name, positions, faces, normals, np.full(len(faces), 3), faces.reshape(-1).copy())
     return assemble_surface([raw], source)
 
 

@@ -16,8 +16,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from .errors import AobakeError
-from .io_common import atomic_write
+from .io_common import atomic_write, pyplot
 
 #: Default grid: (method, label, options). Embree 4..1024 rays, with and without
 #: adaptivity; Bunnell passes and opening parameter (when that method is available).
@@ -167,14 +166,7 @@ def to_json(rows: list[SweepRow], meta: dict) -> str:
 
 def plot_sweep(rows: list[SweepRow], path, *, title: str = "") -> None:
     """Error against seconds, log-log, one colour per method, the Pareto front drawn."""
-    try:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-        import matplotlib.ticker
-    except ImportError as exc:
-        raise AobakeError("plotting needs matplotlib: pip install 'aobake[plot]'") from exc
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(7, 5))
     for method in sorted({r.method for r in rows}):
         pts = [r for r in rows if r.method == method]
@@ -204,8 +196,8 @@ def plot_sweep(rows: list[SweepRow], path, *, title: str = "") -> None:
             )
     ax.set_xscale("log")
     ax.set_yscale("log")
-    ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
-    ax.yaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
+    ax.xaxis.set_minor_formatter(plt.NullFormatter())
+    ax.yaxis.set_minor_formatter(plt.NullFormatter())
     ax.set_xlabel("seconds")
     ax.set_ylabel("RMSE of ao against the reference")
     ax.grid(True, which="both", alpha=0.3)
