@@ -141,11 +141,10 @@ def ray_offsets(
 
 def shell_labels(surface: Surface) -> np.ndarray:
     """(n,) int64 shell id per vertex (see :func:`aobake.kernels.topology.shells`)."""
-    pos = surface.positions
-    order = np.lexsort((pos[:, 2], pos[:, 1], pos[:, 0])).astype(np.int64)
-    sp = pos[order]
-    new_run = np.r_[True, (sp[1:] != sp[:-1]).any(axis=1), True]
-    run_start = np.flatnonzero(new_run).astype(np.int64)
+    pos = np.ascontiguousarray(surface.positions, dtype=np.float64)
+    keys = _topo.position_keys(pos)
+    keys.sort()  # distinct keys: the same order from any sort
+    order, run_start = _topo.coincident_runs(pos, keys)
     return _topo.shells(surface.faces, order, run_start, np.ascontiguousarray(surface.normals))
 
 
@@ -214,37 +213,38 @@ def contact_points(
     """
     p = np.asarray(local, dtype=np.float64)
     n = surface.normals
-    origins = p + offsets[:, None] * n
+    origins = _topo.offset_points(p, offsets, n)
     if surface.n_faces == 0:
         return origins, 0
     shell = shell_labels(surface)
-    face_shell = shell[surface.faces[:, 0]]
-    sizes = np.bincount(face_shell, minlength=shell.max() + 1)
+    n_shells = int(shell.max()) + 1
+    sizes, referenced = _topo.shell_faces(surface.faces, shell, n_shells)
     with_faces = np.flatnonzero(sizes > 0)
     if with_faces.size < 2:
         return origins, 0
     if edges is None:
         edges = _topo.longest_edges(surface.positions, surface.faces)
     n_groups = min(with_faces.size, MAX_CONTACT_GROUPS)
-    rank = np.full(shell.max() + 1, -1, dtype=np.int64)
+    rank = np.full(n_shells, -1, dtype=np.int64)
     rank[with_faces[np.argsort(-sizes[with_faces], kind="stable")]] = np.arange(with_faces.size)
-    group_of_face = rank[face_shell] % n_groups
-    vertex_group = np.where(rank[shell] >= 0, rank[shell] % n_groups, -1)
+    shell_group = np.where(rank >= 0, rank % n_groups, -1)
+    face_order, group_start, group_lo, group_hi = _topo.group_faces(
+        p, surface.faces, shell, referenced, sizes, shell_group, n_groups
+    )
     reach = offsets + np.maximum((1.0 + CONTACT_PROBE_SLACK) * offsets, CONTACT_DEPTH * edges)
-    candidates = n.any(axis=1) & (offsets > 0)
     moved = np.zeros(surface.n_vertices, dtype=bool)
-    face_order = np.argsort(group_of_face, kind="stable")
-    group_start = np.searchsorted(group_of_face[face_order], np.arange(n_groups + 1))
-    group_lo, group_hi = _topo.group_bounds(p, surface.faces, group_of_face, n_groups)
-    vertex_lo, vertex_hi = origins - reach[:, None], origins + reach[:, None]
+    probe_start, probes = _topo.group_probes(
+        origins, reach, n, offsets, shell, shell_group, group_lo, group_hi
+    )
     for g in range(n_groups):
-        near = (vertex_hi >= group_lo[g]).all(axis=1) & (vertex_lo <= group_hi[g]).all(axis=1)
-        idx = np.flatnonzero(candidates & near & (vertex_group != g) & ~moved)
+        idx = probes[probe_start[g] : probe_start[g + 1]]
+        idx = idx[~moved[idx]]
         if idx.size == 0:
             continue
         # Only the group's triangles that the probes can reach go into its scene, so a
         # large object resting on a floor costs a BVH over a few triangles, not all.
-        qlo, qhi = vertex_lo[idx].min(axis=0), vertex_hi[idx].max(axis=0)
+        qlo = (origins[idx] - reach[idx, None]).min(axis=0)
+        qhi = (origins[idx] + reach[idx, None]).max(axis=0)
         ids = _topo.faces_in_box(
             p, surface.faces, face_order[group_start[g] : group_start[g + 1]], qlo, qhi
         )

@@ -169,9 +169,12 @@ def exact_subset(elements, subset, near):
     job = B._Pass(elements, None, B.DEFAULT_THETA, near, K.MEASURE_COSINE, np.inf)
     out = np.zeros((elements.n_vertices, 2, K.N_BINS))
     ones = np.ones(elements.n_vertices)
-    disks = (elements.positions, elements.normals, elements.areas, np.ones((elements.n_vertices, K.N_LEVELS)))
+    disks = (elements.positions, elements.normals, elements.areas,
+             np.ones((elements.n_vertices, K.N_LEVELS)), elements.positions)
     cells = (elements.corner_start, elements.corners, ones)
-    K.brute_force_pass(disks, cells, elements.emitter_index, job.receivers, subset, job.options, out)
+    first = np.zeros((elements.n_vertices, 3))
+    K.brute_force_pass(disks, cells, elements.emitter_index, job.receivers, subset, job.options,
+                       out, first)
     return np.clip(out[:, :, -1].max(axis=1)[subset], 0.0, 1.0)
 
 

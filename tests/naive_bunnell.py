@@ -117,7 +117,8 @@ def naive_cell(positions, faces, j, point, normal, measure="cosine"):
 
 def naive_sums(
     positions, normals, areas, faces, points, weights, measure="cosine", max_distance=None,
-    near=0.0, cell_weights=None, radii=None, reach=np.inf,
+    near=0.0, cell_weights=None, radii=None, reach=np.inf, occluders=None, gate=0.0,
+    first=None,
 ):
     """Unsaturated (front, back) sums at every vertex, one receiver at a time.
 
@@ -133,6 +134,11 @@ def naive_sums(
     at distance r then weighs ``weights[j, #{R in radii : reach r >= R}]``. Returns
     (n, 2), or with ``radii`` (n, 2, len(radii)): cumulative, bin b summing the
     emitters with ``r < radii[b]``.
+
+    ``occluders`` (n, 3) and ``gate`` > 0: a disk whose weight is below 1 only loses
+    the fraction ``clamp(n_i.(occluders[j] - p_i) / (gate r), 0, 1)`` of ``1 - w``
+    (1 for a receiver without a normal). ``first`` (n, 3): filled with
+    ``sum term (c_j - p_i)`` over every disk and cell term (weighted).
     """
     positions = np.asarray(positions, dtype=np.float64)
     cell_weights = weights if cell_weights is None else cell_weights
@@ -163,8 +169,14 @@ def naive_sums(
             if has_normal and r2_32[j] < np.float32(near) * a32[j]:
                 f, b = naive_cell(positions, around[j], j, p, normals[i], measure)
                 out[i][:, reached] += cell_weights[j] * np.array([f, b])[:, None]
+                if first is not None:
+                    first[i] += cell_weights[j] * (f + b) * d
                 continue
             w = weights[j] if radii is None else weights[j, np.sum(reach * r >= radii)]
+            if gate > 0 and occluders is not None and w < 1:
+                lift = normals[i] @ (occluders[j] - p)
+                g = np.clip(lift / (gate * r), 0.0, 1.0) if has_normal else 1.0
+                w = 1.0 - (1.0 - w) * g
             if r2 <= 1e-12 * areas[j] or w <= 0:
                 continue
             cos_e = -normals[j] @ d / r
@@ -177,12 +189,14 @@ def naive_sums(
                 g = np.clip(4.0 * cos_r, 0.0, 1.0) if has_normal else 0.5
                 term = (1.0 - r / np.sqrt(a / np.pi + r2)) * abs(cos_e) * g
             out[i][0 if cos_e > 0 else 1, reached] += w * term
+            if first is not None:
+                first[i] += w * term * d
     return out[:, :, 0] if radii is None else out
 
 
 def naive_bunnell_ao(
     surface: Surface, passes=2, measure="cosine", max_distance=None, combine="last", near=0.0,
-    sides="max", damping=1.0, pass_reach=0.5,
+    sides="max", damping=1.0, pass_reach=0.5, gate=0.1,
 ):
     """Exact (no hierarchy) multi-pass disk AO, straight from the definitions.
 
@@ -190,7 +204,9 @@ def naive_bunnell_ao(
     extent); receivers sit 1e-4 sqrt(A) above their vertex along the normal; in pass k
     the disk of j at distance r weighs ``1 - damping A_{k-1}(j; R)``, its occlusion by
     emitters closer than the largest of PASS_RADII that is <= pass_reach r (1 when none
-    is); cell weights 1.
+    is); cell weights 1. With ``gate`` > 0 that occlusion only counts in the fraction
+    ``clamp(n_i.(o_j - p_i) / (gate r), 0, 1)``, o_j the centroid of pass 1's terms at j
+    (``p_j + sum term d / sum term``).
 
     Returns
     -------
@@ -205,11 +221,18 @@ def naive_bunnell_ao(
     radii = np.array([0.005, 0.02, 0.08, 0.32, 1.28, 5.12])  # aobake.constants.PASS_RADII
     weights = np.ones((len(positions), len(radii) + 1))
     occ = []
-    for _ in range(passes):
+    occluders = None
+    for k in range(passes):
+        first = np.zeros((len(positions), 3))
         sums = naive_sums(
             positions, surface.normals, areas, surface.faces, points, weights, measure, reach,
-            near, np.ones(len(positions)), radii, pass_reach,
+            near, np.ones(len(positions)), radii, pass_reach, occluders, gate, first,
         )
+        if k == 0:
+            total = sums[:, 0, -1] + sums[:, 1, -1]
+            occluders = positions.copy()
+            ok = total > 1e-9
+            occluders[ok] = points[ok] + first[ok] / total[ok, None]
         a = np.clip(sums.max(axis=1) if sides == "max" else sums[:, 0], 0, 1)  # (n, bins)
         occ.append(a[:, -1])
         weights[:, 1:] = 1.0 - damping * a

@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import math
+import types
 
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from aobake.kernels import topology as _topo
 from aobake.mesh import surface_from_arrays
 from aobake.raytrace import (
     Scene,
@@ -16,6 +18,7 @@ from aobake.raytrace import (
     embree_ao,
     half_width,
     ray_offsets,
+    shell_labels,
     stratified_half_width,
 )
 from aobake.sampling import sample_directions
@@ -285,3 +288,163 @@ def test_degenerate_and_duplicate_geometry_is_finite():
 def test_bad_options_rejected(bad):
     with pytest.raises(ValueError):
         embree_ao(shapes.box(), **bad)
+
+
+# --------------------------------------------------------------------------- topology kernels
+
+
+def _equal_position_classes(positions):
+    """Reference: vertices grouped by ``==`` on all three coordinates (NaN alone)."""
+    classes = {}
+    for i, p in enumerate(positions):
+        if np.isnan(p).any():
+            classes[("nan", i)] = [i]
+        else:
+            classes.setdefault(tuple(float(x) + 0.0 for x in p), []).append(i)  # -0.0 -> 0.0
+    return sorted(sorted(c) for c in classes.values())
+
+
+def _runs(order, run_start):
+    return sorted(
+        sorted(order[run_start[k] : run_start[k + 1]].tolist()) for k in range(len(run_start) - 1)
+    )
+
+
+def _lexsort_shell_labels(surface):
+    """The former shell_labels (lexsort runs), kept as the specification."""
+    pos = surface.positions
+    order = np.lexsort((pos[:, 2], pos[:, 1], pos[:, 0])).astype(np.int64)
+    sp = pos[order]
+    new_run = np.r_[True, (sp[1:] != sp[:-1]).any(axis=1), True]
+    run_start = np.flatnonzero(new_run).astype(np.int64)
+    return _topo.shells(surface.faces, order, run_start, np.ascontiguousarray(surface.normals))
+
+
+def _awkward_positions(seed, n=300):
+    rng = np.random.default_rng(seed)
+    values = np.array([0.0, -0.0, 1.0, -1.0, 0.5, np.nan, np.inf, -np.inf, 1e-300, 5e-324])
+    positions = rng.choice(values, size=(n, 3))
+    copies = rng.integers(0, n, n // 3)
+    positions[rng.integers(0, n, n // 3)] = positions[copies] * rng.choice([1.0, -1.0], (n // 3, 1))
+    return positions
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_coincident_runs_are_the_equal_position_classes(seed):
+    positions = _awkward_positions(seed)
+    keys = _topo.position_keys(positions)
+    assert len(set(keys.tolist())) == len(keys)  # the index in the low bits
+    order, run_start = _topo.coincident_runs(positions, np.sort(keys))
+    assert sorted(order.tolist()) == list(range(len(positions)))
+    assert run_start[0] == 0 and run_start[-1] == len(positions)
+    runs = _runs(order, run_start)
+    assert runs == _equal_position_classes(positions)
+
+
+def test_coincident_runs_survive_hash_collisions():
+    # Keys that keep only the index (every hash equal): the runs must still be exact.
+    positions = _awkward_positions(7, n=200)
+    keys = np.arange(len(positions), dtype=np.uint64)[::-1].copy()
+    order, run_start = _topo.coincident_runs(positions, np.sort(keys))
+    runs = _runs(order, run_start)
+    assert runs == _equal_position_classes(positions)
+
+
+def test_position_keys_signed_zero_and_nan():
+    positions = np.array(
+        [[0.0, 1.0, -0.0], [-0.0, 1.0, 0.0], [np.nan, 0, 0], [np.nan, 0, 0], [0.0, 1.0, 1e-300]]
+    )
+    keys = _topo.position_keys(positions)
+    low = np.uint64((1 << _topo.index_bits(len(positions))) - 1)
+    np.testing.assert_array_equal(keys & low, np.arange(len(positions)))
+    hashes = keys & ~low
+    assert hashes[0] == hashes[1]
+    assert hashes[2] != hashes[3] and hashes[4] != hashes[0]
+    assert [_topo.index_bits(n) for n in (0, 1, 2, 3, 4, 5, 1 << 20, (1 << 20) + 1)] == [
+        1, 1, 1, 2, 2, 3, 20, 21
+    ]  # fmt: skip
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_shell_labels_match_lexsort_runs(seed):
+    # Coincident vertices (split normals, -0.0 against 0.0, NaN) joined as before.
+    rng = np.random.default_rng(seed)
+    positions = _awkward_positions(seed, n=400)
+    faces = rng.integers(0, len(positions), size=(int(rng.integers(0, 300)), 3))
+    normals = rng.normal(size=positions.shape)
+    normals /= np.linalg.norm(normals, axis=1)[:, None]
+    normals[rng.random(len(positions)) < 0.2] = 0.0
+    s = types.SimpleNamespace(positions=positions, faces=faces, normals=normals)
+    np.testing.assert_array_equal(shell_labels(s), _lexsort_shell_labels(s))
+
+
+def test_shell_labels_on_contact_scenes():
+    s, _ = shapes.sphere_on_ground(0.5, 3, gap=0.0)
+    labels = shell_labels(s)
+    np.testing.assert_array_equal(labels, _lexsort_shell_labels(s))
+    assert labels.max() == 1
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_face_grouping_kernels_match_numpy(seed):
+    rng = np.random.default_rng(seed)
+    n, m, n_shells = 500, 800, 9
+    positions = rng.normal(size=(n, 3))
+    positions[rng.random((n, 3)) < 0.05] = -0.0
+    shell = rng.integers(0, n_shells, n)
+    # faces within one shell each, leaving some vertices and shells without faces
+    faces = np.array(
+        [rng.choice(np.flatnonzero(shell == shell[v]), 3) for v in rng.integers(0, n, m)]
+    )
+    faces = faces[shell[faces[:, 0]] != 3]
+    sizes, referenced = _topo.shell_faces(faces, shell, n_shells)
+    np.testing.assert_array_equal(sizes, np.bincount(shell[faces[:, 0]], minlength=n_shells))
+    np.testing.assert_array_equal(referenced, np.isin(np.arange(n), faces))
+    rank = np.full(n_shells, -1)
+    with_faces = np.flatnonzero(sizes > 0)
+    rank[with_faces[np.argsort(-sizes[with_faces], kind="stable")]] = np.arange(with_faces.size)
+    n_groups = 3
+    shell_group = np.where(rank >= 0, rank % n_groups, -1)
+    order, start, lo, hi = _topo.group_faces(
+        positions, faces, shell, referenced, sizes, shell_group, n_groups
+    )
+    group_of_face = shell_group[shell[faces[:, 0]]]
+    np.testing.assert_array_equal(order, np.argsort(group_of_face, kind="stable"))
+    np.testing.assert_array_equal(start, np.searchsorted(group_of_face[order], np.arange(4)))
+    for g in range(n_groups):
+        corners = positions[faces[group_of_face == g]].reshape(-1, 3)
+        np.testing.assert_array_equal(lo[g], corners.min(axis=0))
+        np.testing.assert_array_equal(hi[g], corners.max(axis=0))
+    # probes: vertices (with a normal and an offset) whose box meets another group's box
+    origins = positions + rng.normal(scale=0.1, size=(n, 3))
+    reach = rng.random(n) * 0.5
+    normals = rng.normal(size=(n, 3))
+    normals[rng.random(n) < 0.1] = 0.0
+    offsets = np.where(rng.random(n) < 0.1, 0.0, 1e-3)
+    pstart, probes = _topo.group_probes(
+        origins, reach, normals, offsets, shell, shell_group, lo, hi
+    )
+    vlo, vhi = origins - reach[:, None], origins + reach[:, None]
+    candidates = normals.any(axis=1) & (offsets > 0)
+    for g in range(n_groups):
+        near = (vhi >= lo[g]).all(axis=1) & (vlo <= hi[g]).all(axis=1)
+        expected = np.flatnonzero(candidates & near & (shell_group[shell] != g))
+        np.testing.assert_array_equal(probes[pstart[g] : pstart[g + 1]], expected)
+
+
+def test_longest_edges_and_offset_points_match_numpy_bit_for_bit():
+    rng = np.random.default_rng(3)
+    n = 300
+    positions = rng.normal(size=(n, 3)) * rng.choice([1e-8, 1.0, 1e8], size=(n, 1))
+    faces = rng.integers(0, n - 10, size=(600, 3))  # the last vertices unreferenced
+    faces[:5] = faces[:5, :1]  # degenerate
+    d = positions[np.roll(faces, -1, axis=1)] - positions[faces]
+    lengths = np.sqrt(d[..., 0] * d[..., 0] + d[..., 1] * d[..., 1] + d[..., 2] * d[..., 2])
+    expected = np.zeros(n)
+    np.maximum.at(expected, faces.ravel(), lengths.ravel())
+    np.maximum.at(expected, np.roll(faces, -1, axis=1).ravel(), lengths.ravel())
+    assert _topo.longest_edges(positions, faces).tobytes() == expected.tobytes()
+    normals = rng.normal(size=(n, 3))
+    offsets = rng.random(n) * 1e-3
+    out = _topo.offset_points(positions, offsets, normals)
+    assert out.tobytes() == (positions + offsets[:, None] * normals).tobytes()

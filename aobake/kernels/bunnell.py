@@ -35,6 +35,7 @@ __all__ = [
     "brute_force_pass",
     "disk_pair32",
     "disk_term",
+    "gate_factor",
     "is_near",
     "level_of",
     "receiver_factor",
@@ -130,12 +131,27 @@ def level_of(r2, thresholds):
     return k
 
 
+@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+def gate_factor(ox, oy, oz, px, py, pz, nx, ny, nz, r, gate):
+    """How much of an emitter's occlusion counts for a receiver (passes >= 2, gated).
+
+    ``min(1, max(0, h / (gate r)))`` with ``h = n.(o - p)`` the height of the emitter's
+    occluder centroid ``o`` above the receiver's tangent plane; 1 for a receiver without
+    a normal (``n = 0``: every occluder counts, Bunnell's weight).
+    """
+    if nx == 0.0 and ny == 0.0 and nz == 0.0:
+        return 1.0
+    h = nx * (ox - px) + ny * (oy - py) + nz * (oz - pz)
+    return min(max(h / (gate * r), 0.0), 1.0)
+
+
 @njit(cache=True, fastmath=FASTMATH, error_model="numpy", parallel=True)
-def brute_force_pass(disks, cells, emitter_index, receivers, receiver_index, options, out):
+def brute_force_pass(disks, cells, emitter_index, receivers, receiver_index, options, out, first):
     """Exact O(n k) sums ``out[i] = (front, back)`` for every ``i`` in receiver_index.
 
     Disk ``j`` at distance r adds ``disk_term(.., w A |cos_e|, ..)`` to ``front`` when
-    ``cos_e > 0``, else to ``back``, with ``w = weights[j, level_of(r^2, weight_r2)]``;
+    ``cos_e > 0``, else to ``back``, with ``w = weights[j, l]``, ``l = level_of(r^2,
+    weight_r2)``, or when gated ``w = 1 - (1 - weights[j, l]) gate_factor(occluders[j])``;
     skipped: the receiver's own disk, coincident disks (``r^2 <= COINCIDENT_REL A``),
     disks beyond the maximum distance or inside the receiver's inner radius (centre
     distance). Near-field disks (``r^2 < near A``, a receiver with a normal) are replaced
@@ -144,9 +160,9 @@ def brute_force_pass(disks, cells, emitter_index, receivers, receiver_index, opt
     Parameters
     ----------
     disks : tuple
-        ``(positions (n, 3), normals (n, 3), areas (n,), weights (n, N_LEVELS))``
-        float64, per vertex: disk centres (not offset), unit normals, areas, weight per
-        level.
+        ``(positions (n, 3), normals (n, 3), areas (n,), weights (n, N_LEVELS), occluders
+        (n, 3))`` float64, per vertex: disk centres (not offset), unit normals, areas,
+        weight per level, and the centroid of what occludes the disk (used when gated).
     cells : tuple
         ``(corner_start (n + 1,), corners (c, 2), weights (n,))``: the cell corners
         (``polygon.cell_terms``) and the cells' pass weights (float64).
@@ -159,20 +175,26 @@ def brute_force_pass(disks, cells, emitter_index, receivers, receiver_index, opt
     receiver_index : (q,) int64
         Receivers to compute (a chunk); each writes only ``out[i]``.
     options : tuple
-        ``(measure, max_distance, near, binned, bin_r2, weight_r2, leveled)``: measure
-        code, centre-distance limit (``inf`` = unbounded), near-field factor (0 = disks
-        only), whether to split the sums by distance, the bins' squared outer radii
-        (N_BINS,), the weight levels' squared distance thresholds (N_BINS,), and
-        whether the weights differ between levels (a hint for the tree pass).
+        ``(measure, max_distance, near, binned, bin_r2, weight_r2, leveled, gate)``:
+        measure code, centre-distance limit (``inf`` = unbounded), near-field factor (0 =
+        disks only), whether to split the sums by distance, the bins' squared outer radii
+        (N_BINS,), the weight levels' squared distance thresholds (N_BINS,), whether the
+        weights differ between levels (only then are they gated), and the gate width
+        (0: weights not gated; see :func:`gate_factor`).
     out : (n, 2, N_BINS) float64
         Unsaturated (front, back) sums, cumulative by distance: bin b sums the emitters
         with ``r^2 < bin_r2[b]`` (the last bin: all of them); only the last bin when
         not ``binned``.
+    first : (n, 3) float64
+        When ``binned``: ``sum (front + back term) (c - p)`` over every emitter, whose
+        ratio to the summed terms (the last bin's front + back) locates the centroid of
+        what occludes the receiver (the next pass's occluders); untouched otherwise.
     """
-    positions, normals, areas, weights = disks
+    positions, normals, areas, weights, occluders = disks
     corner_start, corners, cell_weights = cells
     points, r_normals, inner = receivers
-    measure, max_distance, near, binned, bin_r2, weight_r2, _ = options
+    measure, max_distance, near, binned, bin_r2, weight_r2, leveled, gate = options
+    gate = gate if leveled else 0.0  # gated weights are a later pass's (as in the tree)
     max_d2 = max_distance * max_distance
     last = bin_r2.shape[0] - 1
     for q in prange(receiver_index.shape[0]):
@@ -189,6 +211,9 @@ def brute_force_pass(disks, cells, emitter_index, receivers, receiver_index, opt
         for b in range(last + 1):
             out[i, 0, b] = 0.0
             out[i, 1, b] = 0.0
+        if binned:
+            for ax in range(3):
+                first[i, ax] = 0.0
         for t in range(emitter_index.shape[0]):
             j = emitter_index[t]
             if j == i:
@@ -210,8 +235,20 @@ def brute_force_pass(disks, cells, emitter_index, receivers, receiver_index, opt
                 for bb in range(b, last + 1):
                     out[i, 0, bb] += cell_weights[j] * f
                     out[i, 1, bb] += cell_weights[j] * bk
+                if binned:
+                    both = cell_weights[j] * (f + bk)
+                    first[i, 0] += both * dx
+                    first[i, 1] += both * dy
+                    first[i, 2] += both * dz
                 continue
-            w = weights[j, level_of(r2, weight_r2)]
+            lv = level_of(r2, weight_r2)
+            w = weights[j, lv]
+            if gate > 0.0 and w < 1.0:
+                g = gate_factor(
+                    occluders[j, 0], occluders[j, 1], occluders[j, 2],
+                    px, py, pz, nx, ny, nz, np.sqrt(r2), gate,
+                )
+                w = 1.0 - (1.0 - w) * g
             if r2 <= COINCIDENT_REL * area or w <= 0.0:
                 continue
             e = -(normals[j, 0] * dx + normals[j, 1] * dy + normals[j, 2] * dz)
@@ -222,6 +259,10 @@ def brute_force_pass(disks, cells, emitter_index, receivers, receiver_index, opt
             term = disk_term(r2, r, w * area * abs(e) / r, area, g, measure)
             for bb in range(b, last + 1):
                 out[i, 0 if e > 0.0 else 1, bb] += term
+            if binned:
+                first[i, 0] += term * dx
+                first[i, 1] += term * dy
+                first[i, 2] += term * dz
 
 
 @njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")

@@ -29,9 +29,12 @@ N_NX, N_NY, N_NZ = 6, 7, 8
 N_TXX, N_TYY, N_TZZ, N_TXY, N_TXZ, N_TYZ = 9, 10, 11, 12, 13, 14
 N_AREA = 15
 NODE_COLS = 16
-# per-pass sums per weight level: A_w, N (3), kappa^2 T (6)
-MOMENT_COLS = 10
+# per-pass sums per weight level: A_w, N (3), kappa^2 T (6), and the centroid of the
+# occluded area, sum (1 - w) A o / sum (1 - w) A (o: the centroid of what occludes the
+# emitter; the node's centre where nothing is occluded)
+MOMENT_COLS = 13
 M_WA, M_NX, M_NY, M_NZ, M_TXX, M_TYY, M_TZZ, M_TXY, M_TXZ, M_TYZ = range(10)
+M_OX, M_OY, M_OZ = 10, 11, 12
 
 # Emitter rows (float32): centre, unit normal, area (weights: a separate (k, L) table).
 E_X, E_Y, E_Z, E_MX, E_MY, E_MZ, E_AREA = 0, 1, 2, 3, 4, 5, 6
@@ -248,9 +251,11 @@ def spread_factor(area, txx, tyy, tzz, txy, txz, tyz):
 
 
 @njit(cache=True, fastmath=FASTMATH, error_model="numpy")
-def refit_nodes(emitters, weights, skip, start, stop, nodes, moments):
+def refit_nodes(emitters, weights, occluders, skip, start, stop, nodes, moments):
     """Per-pass node sums from the emitters' weights, one set per weight level ``l``:
-    ``A_w = sum w_l A``, ``N = sum w_l A m`` and ``kappa^2 T`` with ``T = sum w_l A m m^T``.
+    ``A_w = sum w_l A``, ``N = sum w_l A m``, ``kappa^2 T`` with ``T = sum w_l A m m^T``
+    and the centroid ``sum (1 - w_l) A o / sum (1 - w_l) A`` (o: the emitter's occluder
+    centroid; computed in float64, as a difference of float32 sums would cancel).
 
     Bottom-up in reverse preorder (children before parents: O(m L)) in float64; a leaf
     sums its emitters, an internal node q adds its children q + 1 and skip[q + 1]. The
@@ -261,16 +266,19 @@ def refit_nodes(emitters, weights, skip, start, stop, nodes, moments):
     emitters : (k, EMITTER_COLS) float32
     weights : (k, L) float32
         Each emitter's weight at each level (see ``aobake.kernels.bunnell``).
+    occluders : (k, 3) float32
+        Each emitter's occluder centroid o (gated passes; any values else).
     skip, start, stop : (m,) int64
     nodes : (m, NODE_COLS) float32
         Writes N_WAREA (the largest A_w over the levels: 0 means the node casts
         nothing at any distance) and, from level L - 1, N_NX..N_TYZ.
     moments : (m, L, MOMENT_COLS) float32
-        Written in full: per level ``(A_w, N (3), kappa^2 T (6))``.
+        Written in full: per level ``(A_w, N (3), kappa^2 T (6), occluded centroid (3))``.
     """
     m = skip.shape[0]
     levels = weights.shape[1]
-    mom = np.zeros((m, levels, MOMENT_COLS))
+    hid = MOMENT_COLS  # extra float64 column: sum (1 - w) A
+    mom = np.zeros((m, levels, MOMENT_COLS + 1))
     for q in range(m - 1, -1, -1):
         if skip[q] == q + 1:
             for j in range(start[q], stop[q]):
@@ -290,11 +298,16 @@ def refit_nodes(emitters, weights, skip, start, stop, nodes, moments):
                     mom[q, lv, 7] += wa * mx * my
                     mom[q, lv, 8] += wa * mx * mz
                     mom[q, lv, 9] += wa * my * mz
+                    hidden = area - wa
+                    mom[q, lv, 10] += hidden * np.float64(occluders[j, 0])
+                    mom[q, lv, 11] += hidden * np.float64(occluders[j, 1])
+                    mom[q, lv, 12] += hidden * np.float64(occluders[j, 2])
+                    mom[q, lv, hid] += hidden
         else:
             left = q + 1
             right = skip[left]
             for lv in range(levels):
-                for c in range(MOMENT_COLS):
+                for c in range(MOMENT_COLS + 1):
                     mom[q, lv, c] = mom[left, lv, c] + mom[right, lv, c]
     for q in range(m):
         most = 0.0
@@ -304,8 +317,13 @@ def refit_nodes(emitters, weights, skip, start, stop, nodes, moments):
             k2 = kappa * kappa
             for c in range(4):
                 moments[q, lv, c] = row[c]
-            for c in range(4, MOMENT_COLS):
+            for c in range(4, M_OX):
                 moments[q, lv, c] = k2 * row[c]
+            for c in range(3):
+                if row[hid] > 0.0:
+                    moments[q, lv, M_OX + c] = row[M_OX + c] / row[hid]
+                else:
+                    moments[q, lv, M_OX + c] = nodes[q, N_X + c]
             most = max(most, row[0])
         nodes[q, N_WAREA] = most
         last = levels - 1
@@ -314,3 +332,52 @@ def refit_nodes(emitters, weights, skip, start, stop, nodes, moments):
         nodes[q, N_NZ] = moments[q, last, 3]
         for c in range(6):
             nodes[q, N_TXX + c] = moments[q, last, 4 + c]
+
+
+@njit(cache=True, fastmath=FASTMATH, error_model="numpy")
+def leaf_representatives(positions, normals, areas, order, skip, start, stop, cos_min, rep_of):
+    """Which emitter's pass weights each emitter takes: per leaf, the emitter nearest the
+    leaf's area-weighted centre (its representative) stands for every emitter of the leaf
+    whose normal is within ``arccos(cos_min)`` of its own; the others stand for
+    themselves (a crease or a contact splits the leaf).
+
+    Parameters
+    ----------
+    positions, normals : (n, 3) float64
+    areas : (n,) float64
+    order, skip, start, stop : int64
+        The tree (emitters in tree order; leaves are ``skip[q] == q + 1``).
+    cos_min : float
+    rep_of : (n,) int64
+        Written for the emitters (``order``); other rows untouched.
+    """
+    for q in range(skip.shape[0]):
+        if skip[q] != q + 1:
+            continue
+        lo = start[q]
+        hi = stop[q]
+        cx = 0.0
+        cy = 0.0
+        cz = 0.0
+        total = 0.0
+        for t in range(lo, hi):
+            j = order[t]
+            cx += areas[j] * positions[j, 0]
+            cy += areas[j] * positions[j, 1]
+            cz += areas[j] * positions[j, 2]
+            total += areas[j]
+        cx /= total
+        cy /= total
+        cz /= total
+        rep = order[lo]
+        best = np.inf
+        for t in range(lo, hi):
+            j = order[t]
+            d = (positions[j, 0] - cx) ** 2 + (positions[j, 1] - cy) ** 2 + (positions[j, 2] - cz) ** 2
+            if d < best:
+                best = d
+                rep = j
+        for t in range(lo, hi):
+            j = order[t]
+            c = normals[j, 0] * normals[rep, 0] + normals[j, 1] * normals[rep, 1] + normals[j, 2] * normals[rep, 2]
+            rep_of[j] = rep if c >= cos_min else j

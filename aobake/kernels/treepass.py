@@ -16,6 +16,7 @@ from aobake.constants import COINCIDENT_REL, FASTMATH
 from .bunnell import (
     HALF32,
     N_BINS,
+    N_LEVELS,
     NO_NORMAL_COSINE,
     NO_NORMAL_UNIFORM,
     PI32,
@@ -35,6 +36,9 @@ from .hierarchy import (
     M_NX,
     M_NY,
     M_NZ,
+    M_OX,
+    M_OY,
+    M_OZ,
     M_TXX,
     M_TXY,
     M_TXZ,
@@ -52,12 +56,19 @@ from .hierarchy import (
 from .polygon import MEASURE_COSINE, cell_terms
 
 # Scratch rows per thread (float32): the near list (emitters of opened leaves: centre,
-# normal, area, then area x weight per level) and the far list (nodes used whole),
+# normal, area, area x weight per level, then the occluder centroid of gated passes) and
+# the far list (nodes used whole: centre, the moments of the weight level of their
+# distance, and for gated passes the level-0 moments and the occluded area's centroid),
 # copied per bucket of receivers so each receiver's sums are contiguous loops.
 S_X, S_Y, S_Z, S_MX, S_MY, S_MZ, S_A, S_WA = 0, 1, 2, 3, 4, 5, 6, 7
+S_O = S_WA + N_LEVELS
 F_X, F_Y, F_Z, F_WA, F_NX, F_NY, F_NZ = 0, 1, 2, 3, 4, 5, 6
 F_TXX, F_TYY, F_TZZ, F_TXY, F_TXZ, F_TYZ = 7, 8, 9, 10, 11, 12
-FAR_ROWS = 13
+# far rows F_WA..F_TYZ hold moment columns M_WA..M_TYZ (row = column + 3); the level-0
+# copy of row r is row r + F_LEVEL0 - F_WA
+F_LEVEL0 = 13
+F_OX, F_OY, F_OZ = 23, 24, 25
+FAR_ROWS = 26
 
 # level_weight spells out the select chain for this many bins
 assert N_BINS == 6, "update level_weight and binned_sums for the new PASS_RADII"
@@ -68,8 +79,8 @@ CAND_SLACK = 1e-5
 
 
 def near_rows(levels: int) -> int:
-    """Rows of the near-list scratch for ``levels`` weight levels."""
-    return S_WA + levels
+    """Rows of the near-list scratch for ``levels`` (<= N_LEVELS) weight levels."""
+    return S_O + 3 + 0 * levels
 
 
 @njit(cache=True, fastmath=FASTMATH, error_model="numpy")
@@ -133,11 +144,15 @@ def gather(tree, emitters, bound, options, near_buf, near_idx, far_buf):
       outside every receiver's inner radius);
     - else copy a leaf's emitters to the near list, or descend to q + 1.
 
-    Without ``leveled`` (every weight level equal) only level 0 is copied.
+    Without ``leveled`` (every weight level equal) only level 0 is copied. With
+    ``leveled`` and ``gate > 0`` (gated passes) the near list also gets each emitter's
+    occluder centroid, the far list each node's level-0 moments and the centroid of its
+    occluded area at the level used (:func:`far_pair_gated`).
 
     Near-list emitters that may be in the near field of some receiver of the bucket
     (``r^2 < near A`` for ``r`` = their distance to the bucket's sphere, with slack for
-    float32 rounding) are also listed as cell candidates.
+    float32 rounding), and those inside the sphere (the receivers' own disks), are also
+    listed as cell candidates.
 
     Returns
     -------
@@ -147,8 +162,9 @@ def gather(tree, emitters, bound, options, near_buf, near_idx, far_buf):
         ``far_buf[:, :n_far]``.
     """
     skip, start, stop, nodes, moments = tree
-    rows, index, weights = emitters
-    max_distance, near, weight_r2, leveled = options
+    rows, index, weights, occluders = emitters
+    max_distance, near, weight_r2, leveled, gate = options
+    gated = leveled and gate > 0.0
     bx = bound[0]
     by = bound[1]
     bz = bound[2]
@@ -193,6 +209,12 @@ def gather(tree, emitters, bound, options, near_buf, near_idx, far_buf):
             far_buf[F_TXY, n_far] = moments[node, lv, M_TXY]
             far_buf[F_TXZ, n_far] = moments[node, lv, M_TXZ]
             far_buf[F_TYZ, n_far] = moments[node, lv, M_TYZ]
+            if gated:
+                for c in range(M_TYZ + 1):
+                    far_buf[F_LEVEL0 + c, n_far] = moments[node, 0, c]
+                far_buf[F_OX, n_far] = moments[node, lv, M_OX]
+                far_buf[F_OY, n_far] = moments[node, lv, M_OY]
+                far_buf[F_OZ, n_far] = moments[node, lv, M_OZ]
             n_far += 1
             node = nxt
         elif nxt == node + 1:
@@ -206,15 +228,20 @@ def gather(tree, emitters, bound, options, near_buf, near_idx, far_buf):
                 near_buf[S_A, n_near] = rows[j, E_AREA]
                 for lv in range(levels):
                     near_buf[S_WA + lv, n_near] = weights[j, lv] * rows[j, E_AREA]
+                if gated:
+                    near_buf[S_O, n_near] = occluders[j, 0]
+                    near_buf[S_O + 1, n_near] = occluders[j, 1]
+                    near_buf[S_O + 2, n_near] = occluders[j, 2]
                 near_idx[0, n_near] = index[j]
-                if near > 0.0:
-                    ex = rows[j, E_X] - bx
-                    ey = rows[j, E_Y] - by
-                    ez = rows[j, E_Z] - bz
-                    gap = np.sqrt(ex * ex + ey * ey + ez * ez) - rb - CAND_SLACK
-                    if gap <= 0.0 or gap * gap < near * rows[j, E_AREA] * (1.0 + CAND_SLACK):
-                        near_idx[1, n_cand] = n_near
-                        n_cand += 1
+                # with near = 0 the disks inside the bucket's sphere (its receivers' own
+                # disks among them) are still candidates: the receivers remove their own
+                ex = rows[j, E_X] - bx
+                ey = rows[j, E_Y] - by
+                ez = rows[j, E_Z] - bz
+                gap = np.sqrt(ex * ex + ey * ey + ez * ez) - rb - CAND_SLACK
+                if gap <= 0.0 or gap * gap < near * rows[j, E_AREA] * (1.0 + CAND_SLACK):
+                    near_idx[1, n_cand] = n_near
+                    n_cand += 1
                 n_near += 1
             node = nxt
         else:
@@ -223,27 +250,27 @@ def gather(tree, emitters, bound, options, near_buf, near_idx, far_buf):
 
 
 @njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
-def far_pair(far, j, dx, dy, dz, d2, nx, ny, nz, has_normal, measure):
-    """(front, back) of far-list node j: a point emitter with weighted projected area P
-    toward the receiver, i.e. the disk term without the ``+ A`` regularisation:
-    ``P g / (pi d^2)`` (cosine), ``P g / (2 pi d^2)`` (uniform). The regularisation is
-    exact only on a disk's axis; far clusters sit mostly off-axis, where it biases them
-    low.
+def far_terms(wa, mx, my, mz, txx, tyy, tzz, txy, txz, tyz, dx, dy, dz, d2, nx, ny, nz,
+              has_normal, measure):
+    """(front, back) of a far node with moments ``A_w = wa``, ``N = (mx, my, mz)``,
+    ``kappa^2 T = (txx, ..)``: a point emitter with weighted projected area P toward the
+    receiver, i.e. the disk term without the ``+ A`` regularisation: ``P g / (pi d^2)``
+    (cosine), ``P g / (2 pi d^2)`` (uniform). The regularisation is exact only on a disk's
+    axis; far clusters sit mostly off-axis, where it biases them low.
 
     ``P`` for direction ``u`` (node - receiver) with ``s = -N.u``:
     ``max((sqrt(A_w u^T kappa^2 T u) + s) / 2, s, 0)`` toward the front sides and the
     same with ``-s`` toward the back sides (Cauchy-Schwarz on ``sum w A |m.u|``; exact
     for flat clusters and two-sided sheets, exact on average for isotropic normals).
     """
-    s = -(far[F_NX, j] * dx + far[F_NY, j] * dy + far[F_NZ, j] * dz)
+    s = -(mx * dx + my * dy + mz * dz)
     quad = (
-        far[F_TXX, j] * dx * dx
-        + far[F_TYY, j] * dy * dy
-        + far[F_TZZ, j] * dz * dz
-        + np.float32(2.0)
-        * (far[F_TXY, j] * dx * dy + far[F_TXZ, j] * dx * dz + far[F_TYZ, j] * dy * dz)
+        txx * dx * dx
+        + tyy * dy * dy
+        + tzz * dz * dz
+        + np.float32(2.0) * (txy * dx * dy + txz * dx * dz + tyz * dy * dz)
     )
-    spread = np.sqrt(max(far[F_WA, j] * quad, ZERO32))
+    spread = np.sqrt(max(wa * quad, ZERO32))
     nd = nx * dx + ny * dy + nz * dz
     if measure == MEASURE_COSINE and has_normal:
         c = max(nd, ZERO32) / (PI32 * d2 * d2)
@@ -261,10 +288,64 @@ def far_pair(far, j, dx, dy, dz, d2, nx, ny, nz, has_normal, measure):
 
 
 @njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
-def far_sums(far, n_far, px, py, pz, nx, ny, nz, has_normal, measure):
-    """(front, back) of the far list at one receiver (:func:`far_pair`); vectorises."""
+def far_pair(far, j, dx, dy, dz, d2, nx, ny, nz, has_normal, measure):
+    """(front, back) of far-list node j (:func:`far_terms` on its moments)."""
+    return far_terms(
+        far[F_WA, j], far[F_NX, j], far[F_NY, j], far[F_NZ, j], far[F_TXX, j], far[F_TYY, j],
+        far[F_TZZ, j], far[F_TXY, j], far[F_TXZ, j], far[F_TYZ, j], dx, dy, dz, d2, nx, ny, nz,
+        has_normal, measure,
+    )
+
+
+@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+def gate32(ox, oy, oz, px, py, pz, nx, ny, nz, d2, gate, has_normal):
+    """float32 ``bunnell.gate_factor`` from the squared distance ``d2``."""
+    h = nx * (ox - px) + ny * (oy - py) + nz * (oz - pz)
+    g = min(max(h / (gate * np.sqrt(d2)), ZERO32), np.float32(1.0))
+    return g if has_normal else np.float32(1.0)
+
+
+@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+def far_pair_gated(far, j, dx, dy, dz, d2, px, py, pz, nx, ny, nz, has_normal, measure, gate):
+    """:func:`far_pair` with gated weights: the node's moments are ``M_l + (1 - g)
+    (M_0 - M_l)`` (level l as listed, level 0 = unweighted), g the gate factor of the
+    centroid of its occluded area. Exact for a node of one emitter; for a cluster it
+    gates all its emitters by their common centroid."""
+    g = gate32(far[F_OX, j], far[F_OY, j], far[F_OZ, j], px, py, pz, nx, ny, nz, d2, gate,
+               has_normal)
+    u = np.float32(1.0) - g
+    k = F_LEVEL0 - F_WA
+    return far_terms(
+        far[F_WA, j] + u * (far[F_WA + k, j] - far[F_WA, j]),
+        far[F_NX, j] + u * (far[F_NX + k, j] - far[F_NX, j]),
+        far[F_NY, j] + u * (far[F_NY + k, j] - far[F_NY, j]),
+        far[F_NZ, j] + u * (far[F_NZ + k, j] - far[F_NZ, j]),
+        far[F_TXX, j] + u * (far[F_TXX + k, j] - far[F_TXX, j]),
+        far[F_TYY, j] + u * (far[F_TYY + k, j] - far[F_TYY, j]),
+        far[F_TZZ, j] + u * (far[F_TZZ + k, j] - far[F_TZZ, j]),
+        far[F_TXY, j] + u * (far[F_TXY + k, j] - far[F_TXY, j]),
+        far[F_TXZ, j] + u * (far[F_TXZ + k, j] - far[F_TXZ, j]),
+        far[F_TYZ, j] + u * (far[F_TYZ + k, j] - far[F_TYZ, j]),
+        dx, dy, dz, d2, nx, ny, nz, has_normal, measure,
+    )
+
+
+@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+def far_sums(far, n_far, px, py, pz, nx, ny, nz, has_normal, measure, gate):
+    """(front, back) of the far list at one receiver (:func:`far_pair`, or
+    :func:`far_pair_gated` when ``gate > 0``); vectorises."""
     front = ZERO32
     back = ZERO32
+    if gate > ZERO32:
+        for j in range(n_far):
+            dx = far[F_X, j] - px
+            dy = far[F_Y, j] - py
+            dz = far[F_Z, j] - pz
+            f, b = far_pair_gated(far, j, dx, dy, dz, dx * dx + dy * dy + dz * dz, px, py, pz,
+                                  nx, ny, nz, has_normal, measure, gate)
+            front += f
+            back += b
+        return front, back
     for j in range(n_far):
         dx = far[F_X, j] - px
         dy = far[F_Y, j] - py
@@ -292,8 +373,27 @@ def level_weight(near, j, r2, t0, t1, t2, t3, t4, t5):
 
 
 @njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+def gated_weight(near, j, r2, wa, px, py, pz, nx, ny, nz, has_normal, gate):
+    """Area x gated weight of near-list emitter j: ``A - (A - wa) g`` (``bunnell.gate_factor``
+    of its occluder centroid)."""
+    g = gate32(near[S_O, j], near[S_O + 1, j], near[S_O + 2, j], px, py, pz, nx, ny, nz, r2,
+               gate, has_normal)
+    return near[S_A, j] - (near[S_A, j] - wa) * g
+
+
+@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+def near_weight(near, j, r2, wr2, px, py, pz, nx, ny, nz, has_normal, gate):
+    """Area x weight of near-list emitter j at distance^2 ``r2`` (leveled passes), gated
+    when ``gate > 0``; not for vectorised loops (reads the thresholds array)."""
+    wa = level_weight(near, j, r2, wr2[0], wr2[1], wr2[2], wr2[3], wr2[4], wr2[5])
+    if gate > ZERO32:
+        wa = gated_weight(near, j, r2, wa, px, py, pz, nx, ny, nz, has_normal, gate)
+    return wa
+
+
+@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
 def near_disk_sums(near, n_near, px, py, pz, nx, ny, nz, has_normal, measure, max_d2, min_d2, wr2,
-                   leveled):
+                   leveled, gate):
     """(front, back) of the near list's disks at one receiver, near-field ones included
     (the caller swaps those for their cells).
 
@@ -301,8 +401,10 @@ def near_disk_sums(near, n_near, px, py, pz, nx, ny, nz, has_normal, measure, ma
     radius with selects, not branches. The receiver's own disk needs no test of the
     index: the receiver sits above its vertex along n, so its own disk and every disk at
     the same position have ``n.d < 0`` and a zero term (a receiver without a normal sits
-    on its vertex: coincident). The loop vectorises (16 float32 lanes with AVX-512).
-    ``leveled``: the weights differ between levels (passes >= 2).
+    on its vertex: coincident); a receiver moved aside at a contact has its own disk
+    removed with the near-field candidates. The loop vectorises (16 float32 lanes with AVX-512).
+    ``leveled``: the weights differ between levels (passes >= 2); ``gate > 0``: they are
+    gated (:func:`gated_weight`).
     """
     front = ZERO32
     back = ZERO32
@@ -319,6 +421,22 @@ def near_disk_sums(near, n_near, px, py, pz, nx, ny, nz, has_normal, measure, ma
             e = -(near[S_MX, j] * dx + near[S_MY, j] * dy + near[S_MZ, j] * dz)
             g = max(nx * dx + ny * dy + nz * dz, ZERO32)
             c = near[S_WA, j] * g / (r2 * (PI32 * r2 + a))
+            c = ZERO32 if (r2 <= coincident * a) | (r2 > max_d2) | (r2 < min_d2) else c
+            front += c * max(e, ZERO32)
+            back += c * max(-e, ZERO32)
+        return front, back
+    if measure == MEASURE_COSINE and has_normal and gate > ZERO32:
+        for j in range(n_near):
+            dx = near[S_X, j] - px
+            dy = near[S_Y, j] - py
+            dz = near[S_Z, j] - pz
+            r2 = dx * dx + dy * dy + dz * dz
+            a = near[S_A, j]
+            wa = level_weight(near, j, r2, t0, t1, t2, t3, t4, t5)
+            wa = gated_weight(near, j, r2, wa, px, py, pz, nx, ny, nz, has_normal, gate)
+            e = -(near[S_MX, j] * dx + near[S_MY, j] * dy + near[S_MZ, j] * dz)
+            g = max(nx * dx + ny * dy + nz * dz, ZERO32)
+            c = wa * g / (r2 * (PI32 * r2 + a))
             c = ZERO32 if (r2 <= coincident * a) | (r2 > max_d2) | (r2 < min_d2) else c
             front += c * max(e, ZERO32)
             back += c * max(-e, ZERO32)
@@ -348,6 +466,8 @@ def near_disk_sums(near, n_near, px, py, pz, nx, ny, nz, has_normal, measure, ma
         if r2 <= coincident * a or r2 > max_d2 or r2 < min_d2:
             continue
         wa = level_weight(near, j, r2, t0, t1, t2, t3, t4, t5)
+        if gate > ZERO32:
+            wa = gated_weight(near, j, r2, wa, px, py, pz, nx, ny, nz, has_normal, gate)
         f, b = disk_pair32(
             dx, dy, dz, r2, near[S_MX, j], near[S_MY, j], near[S_MZ, j], wa, a, nx, ny, nz,
             has_normal, measure,
@@ -359,11 +479,12 @@ def near_disk_sums(near, n_near, px, py, pz, nx, ny, nz, has_normal, measure, ma
 
 @njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
 def binned_sums(near, n_near, far, n_far, px, py, pz, nx, ny, nz, has_normal, measure, max_d2,
-                min_d2, wr2, br2, leveled, acc):
+                min_d2, wr2, br2, leveled, gate, acc, first):
     """Like :func:`near_disk_sums` plus :func:`far_sums`, but cumulative by distance:
     ``acc[side, b] += term`` for every bin b with ``r^2 < br2[b]`` (the last bin takes
-    everything; far nodes by their centre's distance). Twelve accumulators spelled out
-    and the cosine case in a loop of its own, so it vectorises."""
+    everything; far nodes by their centre's distance), and ``first += (front + back
+    term) d`` (d: emitter - receiver). Accumulators spelled out and the cosine case in a
+    loop of its own, so it vectorises."""
     coincident = np.float32(COINCIDENT_REL)
     t0, t1, t2, t3, t4, t5 = wr2[0], wr2[1], wr2[2], wr2[3], wr2[4], wr2[5]
     r0, r1, r2_, r3, r4 = br2[0], br2[1], br2[2], br2[3], br2[4]
@@ -379,7 +500,11 @@ def binned_sums(near, n_near, far, n_far, px, py, pz, nx, ny, nz, has_normal, me
     b3 = ZERO32
     b4 = ZERO32
     b5 = ZERO32
-    if measure == MEASURE_COSINE and has_normal:
+    sx = ZERO32
+    sy = ZERO32
+    sz = ZERO32
+    if measure == MEASURE_COSINE and has_normal and gate == ZERO32:
+        # gated passes take the loop below (a branch in this one stops vectorisation)
         for j in range(n_near):
             dx = near[S_X, j] - px
             dy = near[S_Y, j] - py
@@ -410,6 +535,10 @@ def binned_sums(near, n_near, far, n_far, px, py, pz, nx, ny, nz, has_normal, me
             b4 += b * m
             f5 += f
             b5 += b
+            t = f + b
+            sx += t * dx
+            sy += t * dy
+            sz += t * dz
     else:
         for j in range(n_near):
             dx = near[S_X, j] - px
@@ -420,6 +549,8 @@ def binned_sums(near, n_near, far, n_far, px, py, pz, nx, ny, nz, has_normal, me
             if d2 <= coincident * a or d2 > max_d2 or d2 < min_d2:
                 continue
             wa = level_weight(near, j, d2, t0, t1, t2, t3, t4, t5)
+            if gate > ZERO32:
+                wa = gated_weight(near, j, d2, wa, px, py, pz, nx, ny, nz, has_normal, gate)
             f, b = disk_pair32(
                 dx, dy, dz, d2, near[S_MX, j], near[S_MY, j], near[S_MZ, j], wa, a, nx, ny, nz,
                 has_normal, measure,
@@ -441,29 +572,71 @@ def binned_sums(near, n_near, far, n_far, px, py, pz, nx, ny, nz, has_normal, me
             b4 += b * m
             f5 += f
             b5 += b
-    for j in range(n_far):
-        dx = far[F_X, j] - px
-        dy = far[F_Y, j] - py
-        dz = far[F_Z, j] - pz
-        d2 = dx * dx + dy * dy + dz * dz
-        f, b = far_pair(far, j, dx, dy, dz, d2, nx, ny, nz, has_normal, measure)
-        m = np.float32(d2 < r0)
-        f0 += f * m
-        b0 += b * m
-        m = np.float32(d2 < r1)
-        f1 += f * m
-        b1 += b * m
-        m = np.float32(d2 < r2_)
-        f2 += f * m
-        b2 += b * m
-        m = np.float32(d2 < r3)
-        f3 += f * m
-        b3 += b * m
-        m = np.float32(d2 < r4)
-        f4 += f * m
-        b4 += b * m
-        f5 += f
-        b5 += b
+            t = f + b
+            sx += t * dx
+            sy += t * dy
+            sz += t * dz
+    # one loop per case: a branch inside would stop vectorisation
+    if gate > ZERO32:
+        for j in range(n_far):
+            dx = far[F_X, j] - px
+            dy = far[F_Y, j] - py
+            dz = far[F_Z, j] - pz
+            d2 = dx * dx + dy * dy + dz * dz
+            f, b = far_pair_gated(far, j, dx, dy, dz, d2, px, py, pz, nx, ny, nz, has_normal,
+                                  measure, gate)
+            m = np.float32(d2 < r0)
+            f0 += f * m
+            b0 += b * m
+            m = np.float32(d2 < r1)
+            f1 += f * m
+            b1 += b * m
+            m = np.float32(d2 < r2_)
+            f2 += f * m
+            b2 += b * m
+            m = np.float32(d2 < r3)
+            f3 += f * m
+            b3 += b * m
+            m = np.float32(d2 < r4)
+            f4 += f * m
+            b4 += b * m
+            f5 += f
+            b5 += b
+            t = f + b
+            sx += t * dx
+            sy += t * dy
+            sz += t * dz
+    else:
+        for j in range(n_far):
+            dx = far[F_X, j] - px
+            dy = far[F_Y, j] - py
+            dz = far[F_Z, j] - pz
+            d2 = dx * dx + dy * dy + dz * dz
+            f, b = far_pair(far, j, dx, dy, dz, d2, nx, ny, nz, has_normal, measure)
+            m = np.float32(d2 < r0)
+            f0 += f * m
+            b0 += b * m
+            m = np.float32(d2 < r1)
+            f1 += f * m
+            b1 += b * m
+            m = np.float32(d2 < r2_)
+            f2 += f * m
+            b2 += b * m
+            m = np.float32(d2 < r3)
+            f3 += f * m
+            b3 += b * m
+            m = np.float32(d2 < r4)
+            f4 += f * m
+            b4 += b * m
+            f5 += f
+            b5 += b
+            t = f + b
+            sx += t * dx
+            sy += t * dy
+            sz += t * dz
+    first[0] += sx
+    first[1] += sy
+    first[2] += sz
     acc[0, 0] += f0
     acc[0, 1] += f1
     acc[0, 2] += f2
@@ -490,7 +663,7 @@ def add_cumulative(acc, f, b, r2, br2, binned):
 
 
 @njit(cache=True, fastmath=FASTMATH, error_model="numpy", parallel=True)
-def hierarchy_pass(tree, emitters, receivers, near_field, buckets, span, options, out):
+def hierarchy_pass(tree, emitters, receivers, near_field, buckets, span, options, out, first):
     """Tree sums for the receivers of buckets ``span[0]:span[1]``: like
     ``bunnell.brute_force_pass``, far clusters count as one emitter.
 
@@ -508,7 +681,8 @@ def hierarchy_pass(tree, emitters, receivers, near_field, buckets, span, options
         float32; moments (m, N_LEVELS, MOMENT_COLS) float32, refit for this pass).
     emitters : tuple
         ``(rows (k, EMITTER_COLS) float32, index (k,) int64, weights (k, N_LEVELS)
-        float32)`` in tree order.
+        float32, occluders (k, 3) float32)`` in tree order (occluder centroids: gated
+        passes).
     receivers : tuple
         ``(points (n, 3), normals (n, 3), inner (n,))`` float64 (see
         ``bunnell.brute_force_pass``).
@@ -527,17 +701,21 @@ def hierarchy_pass(tree, emitters, receivers, near_field, buckets, span, options
     span : tuple
         ``(b0, b1)`` buckets to compute.
     options : tuple
-        ``(measure, max_distance, near, binned, bin_r2, weight_r2, leveled)`` as in
-        ``bunnell.brute_force_pass``; ``leveled``: the weights differ between levels.
+        ``(measure, max_distance, near, binned, bin_r2, weight_r2, leveled, gate)`` as
+        in ``bunnell.brute_force_pass``; ``leveled``: the weights differ between levels
+        (the gate applies only then).
     out : (n, 2, N_BINS) float64
         Unsaturated (front, back) sums, cumulative by distance bin when ``binned``
         (else only the last bin, the total, is written); each receiver writes its own
         row.
+    first : (n, 3) float64
+        When ``binned`` and ``cache_mode != 2``: as in ``bunnell.brute_force_pass``.
     """
     positions, cell_weights, corner_start, corners, cache, cache_mode = near_field
     points, normals, inner = receivers
     order, bucket_start, bounds, near_buf, near_idx, far_buf = buckets
-    measure, max_distance, near, binned, bin_r2, weight_r2, leveled = options
+    measure, max_distance, near, binned, bin_r2, weight_r2, leveled, gate = options
+    gate_ = np.float32(gate) if leveled else ZERO32
     max_d2 = np.float32(min(max_distance * max_distance, 3.0e38))
     # without levels only level 0 is gathered: thresholds no distance reaches
     wr2 = weight_r2.astype(np.float32) if leveled else np.full(weight_r2.shape[0], np.inf, np.float32)
@@ -551,8 +729,9 @@ def hierarchy_pass(tree, emitters, receivers, near_field, buckets, span, options
         fb = far_buf[tid]
         quad = np.empty((4, 3))
         acc = np.zeros((2, last + 1))
+        fst = np.zeros(3)
         n_near, n_cand, n_far = gather(
-            tree, emitters, bounds[bk], (max_distance, near, weight_r2, leveled), nb, ni, fb
+            tree, emitters, bounds[bk], (max_distance, near, weight_r2, leveled, gate), nb, ni, fb
         )
         for q in range(bucket_start[bk], bucket_start[bk + 1]):
             i = order[q]
@@ -571,25 +750,31 @@ def hierarchy_pass(tree, emitters, receivers, near_field, buckets, span, options
             ny32 = np.float32(ny)
             nz32 = np.float32(nz)
             acc[:] = 0.0
+            fst[:] = 0.0
             if binned:
                 binned_sums(nb, n_near, fb, n_far, px32, py32, pz32, nx32, ny32, nz32, has_normal,
-                            measure, max_d2, np.float32(min_d2), wr2, br2, leveled, acc)
+                            measure, max_d2, np.float32(min_d2), wr2, br2, leveled, gate_, acc,
+                            fst)
             else:
-                f1, b1_ = far_sums(fb, n_far, px32, py32, pz32, nx32, ny32, nz32, has_normal, measure)
+                f1, b1_ = far_sums(fb, n_far, px32, py32, pz32, nx32, ny32, nz32, has_normal, measure,
+                                   gate_)
                 f2, b2 = near_disk_sums(
                     nb, n_near, px32, py32, pz32, nx32, ny32, nz32, has_normal, measure, max_d2,
-                    np.float32(min_d2), wr2, leveled,
+                    np.float32(min_d2), wr2, leveled, gate_,
                 )
                 acc[0, last] = np.float64(f1) + np.float64(f2)
                 acc[1, last] = np.float64(b1_) + np.float64(b2)
-            if has_normal and near > 0.0:
+            if has_normal:
                 # near-field emitters: swap the disk (as summed above) for the cell
                 for u in range(n_cand):
                     t = ni[1, u]
                     j = ni[0, t]
-                    if j == i:
-                        continue
-                    if not is_near(nb[S_X, t], nb[S_Y, t], nb[S_Z, t], nb[S_A, t], px, py, pz, near):
+                    # the receiver's own disk: summed above unless the receiver sits
+                    # straight above its vertex (a contact moves it aside), removed here
+                    own = j == i
+                    if not own and not is_near(
+                        nb[S_X, t], nb[S_Y, t], nb[S_Z, t], nb[S_A, t], px, py, pz, near
+                    ):
                         continue
                     dx = positions[j, 0] - px
                     dy = positions[j, 1] - py
@@ -608,10 +793,16 @@ def hierarchy_pass(tree, emitters, receivers, near_field, buckets, span, options
                     else:
                         df, db = disk_pair32(
                             ex, ey, ez, r2, nb[S_MX, t], nb[S_MY, t], nb[S_MZ, t],
-                            level_weight(nb, t, r2, wr2[0], wr2[1], wr2[2], wr2[3], wr2[4], wr2[5]),
+                            near_weight(nb, t, r2, wr2, px32, py32, pz32, nx32, ny32, nz32,
+                                        has_normal, gate_),
                             a, nx32, ny32, nz32, has_normal, measure,
                         )
-                    if cache_mode == 2:
+                    if binned:  # the disk's share of the first moment goes with it
+                        both = np.float64(df) + np.float64(db)
+                        fst[0] -= both * ex
+                        fst[1] -= both * ey
+                        fst[2] -= both * ez
+                    if own or cache_mode == 2:
                         add_cumulative(acc, -np.float64(df), -np.float64(db), r2, br2, binned)
                         continue
                     f, bck = cell_terms(
@@ -620,6 +811,10 @@ def hierarchy_pass(tree, emitters, receivers, near_field, buckets, span, options
                     f *= cell_weights[j]
                     bck *= cell_weights[j]
                     add_cumulative(acc, f - np.float64(df), bck - np.float64(db), r2, br2, binned)
+                    if binned:
+                        fst[0] += (f + bck) * dx
+                        fst[1] += (f + bck) * dy
+                        fst[2] += (f + bck) * dz
                     if cache_mode == 1:
                         add_cumulative(cache[i], f, bck, r2, br2, True)
                 if cache_mode == 2:
@@ -630,3 +825,7 @@ def hierarchy_pass(tree, emitters, receivers, near_field, buckets, span, options
                 # the swap can leave -1 ulp where the sum is 0
                 out[i, 0, k] = max(acc[0, k], 0.0)
                 out[i, 1, k] = max(acc[1, k], 0.0)
+            if binned:
+                first[i, 0] = fst[0]
+                first[i, 1] = fst[1]
+                first[i, 2] = fst[2]
