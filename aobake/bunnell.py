@@ -235,6 +235,7 @@ class _Pass:
             elements.points,
             elements.normals,
             np.ascontiguousarray(inner, dtype=np.float64),
+            np.full(elements.n_vertices, 2, dtype=np.uint8),
         )
         if tree is None:
             return
@@ -274,7 +275,7 @@ class _Pass:
         binned: bool = False,
         cache_mode: int = 0,
         occluders=None,
-        buckets=None,
+        modes=None,
     ) -> tuple[FloatArray, FloatArray]:
         """(n, 2, N_BINS) unsaturated (front, back) sums, cumulative by distance when
         ``binned`` (else only the last bin, the total), and (n, 3) first moments
@@ -285,8 +286,8 @@ class _Pass:
         ``cache_mode`` (tree only): 1 keeps each receiver's cell sums, 2 reuses them (the
         cell weights must not have changed), 0 neither. ``occluders``: (n, 3) occluder
         centroids for gated weights (default: the vertices; unused unless leveled).
-        ``buckets`` (tree only): receivers to compute, from :meth:`subset_buckets`
-        (default: all); the other rows of the result are 0.
+        ``modes`` (tree only): (n,) uint8 per receiver, 0 skip (row 0), 1 total only, 2
+        binned when ``binned`` (default: all 2).
         """
         e = self.elements
         n = e.n_vertices
@@ -327,8 +328,11 @@ class _Pass:
         if cache_mode and not hasattr(self, "cache"):
             self.cache = np.zeros((n, 2, _k.N_BINS))
         cache = getattr(self, "cache", np.zeros((0, 2, _k.N_BINS)))
+        receivers = self.receivers
+        if modes is not None:
+            receivers = receivers[:3] + (np.ascontiguousarray(modes, dtype=np.uint8),)
         near_field = (e.positions, cell_weights, e.corner_start, e.corners, cache, int(cache_mode))
-        buckets = self.buckets if buckets is None else buckets
+        buckets = self.buckets
         bucket_start = buckets[1]
         n_buckets = bucket_start.shape[0] - 1
         for b0 in range(0, n_buckets, CHUNK_BUCKETS):
@@ -336,7 +340,7 @@ class _Pass:
             _tp.hierarchy_pass(
                 self.tree_args,
                 self.emitters,
-                self.receivers,
+                receivers,
                 near_field,
                 buckets,
                 (b0, b1),
@@ -346,18 +350,6 @@ class _Pass:
             )
             progress.advance(int(bucket_start[b1] - bucket_start[b0]))
         return out, first
-
-
-    def subset_buckets(self, vertices: IndexArray) -> tuple:
-        """Buckets for :meth:`sums` over a subset of the receivers, given in tree order:
-        runs of ``leaf_size`` consecutive ones (neighbours, as tree order is)."""
-        order = np.ascontiguousarray(vertices, dtype=np.int64)
-        size = self.tree.leaf_size
-        bucket_start = np.append(np.arange(0, order.shape[0], size), order.shape[0])
-        bucket_start = bucket_start.astype(np.int64)
-        bounds = np.zeros((bucket_start.shape[0] - 1, 5))
-        _tp.bucket_bounds(self.elements.points, self.receivers[2], order, bucket_start, bounds)
-        return (order, bucket_start, bounds) + self.buckets[3:]
 
 
 def weight_representatives(elements: DiskElements, tree: ClusterTree) -> IndexArray:
@@ -443,7 +435,8 @@ def occlusion_passes(
     sides : {"max", "front"}
         ``"max"``: ``max(front, back)``; ``"front"``: front sums only.
     damping : float
-        In (0, 1]. ``damping=1, pass_reach=inf, near=0`` is Bunnell's published scheme.
+        In (0, 1]. ``damping=1, pass_reach=inf, gate=0, near=0`` is Bunnell's published
+        scheme.
     pass_reach : float
         > 0, or inf (weights from the whole previous pass, as published).
     gate : float
@@ -486,40 +479,88 @@ def occlusion_passes(
         progress.finish()
         return occlusion
     share = share_weights and tree is not None and passes > 1
-    rep_of = weight_representatives(elements, tree) if share else np.arange(n)
-    evaluated = tree.order[rep_of[tree.order] == tree.order] if share else None
-    progress.start(n + (passes - 1) * (n if evaluated is None else evaluated.shape[0]), "bunnell")
-    weights = np.ones((n, _k.N_LEVELS))
-    cell_weights = np.ones(n)
+    if share:
+        rep_of = weight_representatives(elements, tree)
+        casts = np.zeros(n, dtype=np.bool_)
+        casts[tree.order] = True
+        # representatives in tree order (neighbours), then the vertices that do not cast
+        evaluated = np.concatenate(
+            [tree.order[rep_of[tree.order] == tree.order], np.flatnonzero(~casts)]
+        )
+    progress.start(passes * n, "bunnell")  # every pass walks every bucket
     with numba_threads(threads), np.errstate(under="ignore"):
         if inner is not None:
             inner = np.asarray(inner, dtype=np.float64) / elements.scale
             if inner.shape != (n,) or not np.all(inner >= 0.0):
                 raise ValueError(f"inner must be ({n},) and >= 0")
         job = _Pass(elements, tree, theta, near, code, reach, inner, pass_reach, gate)
-        subset = job.subset_buckets(evaluated) if share else None
-        occluders = None
-        for k in range(passes):
-            binned = k + 1 < passes  # the next pass needs occlusion by distance
-            # cells keep weight 1 in every pass: evaluate them once (all receivers)
-            cache_mode = 0 if passes == 1 or share else (1 if k == 0 else 2)
-            sums, first = job.sums(
-                weights, progress, cell_weights, binned, cache_mode, occluders,
-                subset if binned else None,
-            )
-            _check_result(sums, "unsaturated occlusion sum", lower=0.0, upper=np.inf)
-            if binned:  # only the representatives' rows when shared: copy them over
-                sums, first = sums[rep_of], first[rep_of]
-            if binned and k == 0:
-                occluders = occluder_centroids(elements, sums, first)
-            occlusion[k] = np.clip(combine_sides(sums[:, :, -1], sides), 0.0, 1.0)
-            if binned:
-                # A(j; R_b): occlusion by emitters closer than bin b's outer radius
-                for b in range(_k.N_BINS):
-                    a_b = np.clip(combine_sides(sums[:, :, b], sides), 0.0, 1.0)
-                    weights[:, b + 1] = 1.0 - damping * a_b
+        if share:
+            _shared_passes(job, occlusion, rep_of, evaluated, passes, sides, damping, progress)
+        else:
+            _all_passes(job, occlusion, passes, sides, damping, progress)
     progress.finish()
     return occlusion
+
+
+def _weights_from(sums: FloatArray, sides: str, damping: float) -> FloatArray:
+    """(n, N_LEVELS) pass weights from binned sums: level 0 is 1, level b + 1 is
+    ``1 - damping A(j; R_b)`` (occlusion by emitters closer than bin b's outer radius)."""
+    weights = np.ones((sums.shape[0], _k.N_LEVELS))
+    for b in range(_k.N_BINS):
+        weights[:, b + 1] = 1.0 - damping * np.clip(combine_sides(sums[:, :, b], sides), 0.0, 1.0)
+    return weights
+
+
+def _all_passes(job, occlusion, passes, sides, damping, progress) -> None:
+    """Every pass at every vertex (the exact sum's and the reference's way)."""
+    n = occlusion.shape[1]
+    weights = np.ones((n, _k.N_LEVELS))
+    cell_weights = np.ones(n)
+    occluders = None
+    for k in range(passes):
+        binned = k + 1 < passes  # the next pass needs occlusion by distance
+        # cells keep weight 1 in every pass: evaluate them once
+        cache_mode = 0 if passes == 1 else (1 if k == 0 else 2)
+        sums, first = job.sums(weights, progress, cell_weights, binned, cache_mode, occluders)
+        _check_result(sums, "unsaturated occlusion sum", lower=0.0, upper=np.inf)
+        if binned and k == 0:
+            occluders = occluder_centroids(job.elements, sums, first)
+        occlusion[k] = np.clip(combine_sides(sums[:, :, -1], sides), 0.0, 1.0)
+        if binned:
+            weights = _weights_from(sums, sides, damping)
+
+
+def _shared_passes(job, occlusion, rep_of, evaluated, passes, sides, damping, progress) -> None:
+    """Pass 1 at every vertex (split by distance: every vertex's own weights); passes
+    2..K at the representatives only, walking the tree from the same buckets as pass 1
+    (so pass 1 and pass k share their tree approximations there), carried to the
+    vertices they stand for as what pass k removed, side by side:
+    ``S_k(i) = S_1(i) - (S_1(rep) - S_k(rep))``. What a later pass removes (occlusion
+    by emitters at least 2 PASS_RADII[0] away that are themselves in shadow) varies
+    smoothly over a leaf; each vertex keeps its own near field and contacts (a ratio
+    S_k(rep) / S_1(rep) would scale them: measured worse at contacts)."""
+    n = occlusion.shape[1]
+    ones = np.ones(n)
+    first_sums, first = job.sums(np.ones((n, _k.N_LEVELS)), progress, ones, True, 0)
+    _check_result(first_sums, "unsaturated occlusion sum", lower=0.0, upper=np.inf)
+    base = first_sums[:, :, -1]
+    occlusion[0] = np.clip(combine_sides(base, sides), 0.0, 1.0)
+    # every vertex's own weights: occlusion within a few edge lengths (the first bins)
+    # changes too fast to share (a contact vertex's leaf-mates are open)
+    occluders = occluder_centroids(job.elements, first_sums, first)
+    weights = _weights_from(first_sums, sides, damping)
+    base_rep = base[rep_of]
+    modes = np.zeros(n, dtype=np.uint8)  # later passes: the representatives only
+    modes[evaluated] = 2
+    for k in range(1, passes):
+        binned = k + 1 < passes
+        sums, _ = job.sums(weights, progress, ones, binned, 0, occluders, modes)
+        _check_result(sums, "unsaturated occlusion sum", lower=0.0, upper=np.inf)
+        shared = sums[rep_of]
+        drop = np.maximum(base_rep - shared[:, :, -1], 0.0)  # never above pass 1
+        occlusion[k] = np.clip(combine_sides(np.maximum(base - drop, 0.0), sides), 0.0, 1.0)
+        if binned:  # passes >= 3: the representatives' weights
+            weights = _weights_from(shared, sides, damping)
 
 
 def combine_sides(sums: FloatArray, sides: str = "max") -> FloatArray:

@@ -429,9 +429,11 @@ def test_single_layer_does_not_collapse():
         two = B.occlusion_passes(e, tree, passes=2, theta=np.inf, share_weights=share)[1]
         np.testing.assert_allclose(two, one, rtol=0, atol=1e-6)
         # clusters of both plates put their occluder centroids a little off the plane
+        # (more so at the shared passes' opening parameter, theta / 2)
         one = B.occlusion_passes(e, tree)[0]
         two = B.occlusion_passes(e, tree, passes=2, share_weights=share)[1]
-        np.testing.assert_allclose(two, one, rtol=0, atol=2e-3)
+        np.testing.assert_allclose(two, one, rtol=0, atol=5e-3)
+        assert np.all(two <= one + 1e-6)
 
 
 def test_cumulative_bins_match_max_distance():
@@ -884,11 +886,7 @@ def test_progress_counts_every_receiver_of_every_pass():
     for exact, share in ((False, False), (True, True), (False, True)):
         rec = Recorder()
         B.bunnell_ao(s, passes=3, progress=rec, exact=exact, share_weights=share)
-        assert rec.total == rec.done and rec.finished
-        if share and not exact:  # passes 1 and 2 at one vertex per leaf and normal group
-            assert s.n_vertices < rec.total < 3 * s.n_vertices
-        else:
-            assert rec.total == 3 * s.n_vertices
+        assert rec.total == rec.done == 3 * s.n_vertices and rec.finished
 
 
 def test_input_arrays_are_not_modified():

@@ -169,9 +169,10 @@ def brute_force_pass(disks, cells, emitter_index, receivers, receiver_index, opt
     emitter_index : (k,) int64
         Vertices whose disks cast.
     receivers : tuple
-        ``(points (n, 3), normals (n, 3), inner (n,))`` float64: evaluation points,
-        normals, and an inner radius: emitters (disks and cells) whose centre is closer
-        than it are left out (0: none; the hybrid method's rays cover that ball).
+        ``(points (n, 3), normals (n, 3), inner (n,), modes (n,) uint8)``: evaluation
+        points, normals, and an inner radius: emitters (disks and cells) whose centre is
+        closer than it are left out (0: none; the hybrid method's rays cover that ball);
+        ``modes`` is for the tree pass (here ``receiver_index`` chooses).
     receiver_index : (q,) int64
         Receivers to compute (a chunk); each writes only ``out[i]``.
     options : tuple
@@ -192,7 +193,7 @@ def brute_force_pass(disks, cells, emitter_index, receivers, receiver_index, opt
     """
     positions, normals, areas, weights, occluders = disks
     corner_start, corners, cell_weights = cells
-    points, r_normals, inner = receivers
+    points, r_normals, inner, _ = receivers
     measure, max_distance, near, binned, bin_r2, weight_r2, leveled, gate = options
     gate = gate if leveled else 0.0  # gated weights are a later pass's (as in the tree)
     max_d2 = max_distance * max_distance

@@ -684,8 +684,10 @@ def hierarchy_pass(tree, emitters, receivers, near_field, buckets, span, options
         float32, occluders (k, 3) float32)`` in tree order (occluder centroids: gated
         passes).
     receivers : tuple
-        ``(points (n, 3), normals (n, 3), inner (n,))`` float64 (see
-        ``bunnell.brute_force_pass``).
+        ``(points (n, 3), normals (n, 3), inner (n,), modes (n,) uint8)``: as in
+        ``bunnell.brute_force_pass``, and what each receiver computes: 0 nothing (its
+        row is left alone), 1 the total only, 2 the sums by distance too when
+        ``binned``.
     near_field : tuple
         ``(positions (n, 3), weights (n,), corner_start, corners, cache (n, 2, N_BINS),
         cache_mode)``: float64 vertex positions, the cells' pass weights, the cell
@@ -712,7 +714,7 @@ def hierarchy_pass(tree, emitters, receivers, near_field, buckets, span, options
         When ``binned`` and ``cache_mode != 2``: as in ``bunnell.brute_force_pass``.
     """
     positions, cell_weights, corner_start, corners, cache, cache_mode = near_field
-    points, normals, inner = receivers
+    points, normals, inner, modes = receivers
     order, bucket_start, bounds, near_buf, near_idx, far_buf = buckets
     measure, max_distance, near, binned, bin_r2, weight_r2, leveled, gate = options
     gate_ = np.float32(gate) if leveled else ZERO32
@@ -735,6 +737,8 @@ def hierarchy_pass(tree, emitters, receivers, near_field, buckets, span, options
         )
         for q in range(bucket_start[bk], bucket_start[bk + 1]):
             i = order[q]
+            if modes[i] == 0:
+                continue
             px = points[i, 0]
             py = points[i, 1]
             pz = points[i, 2]
@@ -742,6 +746,7 @@ def hierarchy_pass(tree, emitters, receivers, near_field, buckets, span, options
             ny = normals[i, 1]
             nz = normals[i, 2]
             has_normal = nx * nx + ny * ny + nz * nz > 0.0
+            binned_i = binned and modes[i] == 2
             min_d2 = inner[i] * inner[i]
             px32 = np.float32(px)
             py32 = np.float32(py)
@@ -751,7 +756,7 @@ def hierarchy_pass(tree, emitters, receivers, near_field, buckets, span, options
             nz32 = np.float32(nz)
             acc[:] = 0.0
             fst[:] = 0.0
-            if binned:
+            if binned_i:
                 binned_sums(nb, n_near, fb, n_far, px32, py32, pz32, nx32, ny32, nz32, has_normal,
                             measure, max_d2, np.float32(min_d2), wr2, br2, leveled, gate_, acc,
                             fst)
@@ -797,35 +802,35 @@ def hierarchy_pass(tree, emitters, receivers, near_field, buckets, span, options
                                         has_normal, gate_),
                             a, nx32, ny32, nz32, has_normal, measure,
                         )
-                    if binned:  # the disk's share of the first moment goes with it
+                    if binned_i:  # the disk's share of the first moment goes with it
                         both = np.float64(df) + np.float64(db)
                         fst[0] -= both * ex
                         fst[1] -= both * ey
                         fst[2] -= both * ez
                     if own or cache_mode == 2:
-                        add_cumulative(acc, -np.float64(df), -np.float64(db), r2, br2, binned)
+                        add_cumulative(acc, -np.float64(df), -np.float64(db), r2, br2, binned_i)
                         continue
                     f, bck = cell_terms(
                         positions, corner_start, corners, j, px, py, pz, nx, ny, nz, measure, quad
                     )
                     f *= cell_weights[j]
                     bck *= cell_weights[j]
-                    add_cumulative(acc, f - np.float64(df), bck - np.float64(db), r2, br2, binned)
-                    if binned:
+                    add_cumulative(acc, f - np.float64(df), bck - np.float64(db), r2, br2, binned_i)
+                    if binned_i:
                         fst[0] += (f + bck) * dx
                         fst[1] += (f + bck) * dy
                         fst[2] += (f + bck) * dz
                     if cache_mode == 1:
                         add_cumulative(cache[i], f, bck, r2, br2, True)
                 if cache_mode == 2:
-                    for k in range(last + 1) if binned else range(last, last + 1):
+                    for k in range(last + 1) if binned_i else range(last, last + 1):
                         acc[0, k] += cache[i, 0, k]
                         acc[1, k] += cache[i, 1, k]
             for k in range(last + 1):
                 # the swap can leave -1 ulp where the sum is 0
                 out[i, 0, k] = max(acc[0, k], 0.0)
                 out[i, 1, k] = max(acc[1, k], 0.0)
-            if binned:
+            if binned_i:
                 first[i, 0] = fst[0]
                 first[i, 1] = fst[1]
                 first[i, 2] = fst[2]
