@@ -11,11 +11,13 @@ Prints Markdown tables measured in one run (not a test; no assertions):
    leaf size, against the exact sum on a random subset of receivers;
 3. scaling: time per pass for n, 4n and 16n vertices (goal about n log n);
 4. the contenders on the big scene timed round-robin (best of 3 rounds), so that load from
-   other processes hits all of them alike.
+   other processes hits all of them alike;
+5. a second ~700k-vertex scene (the bunny, loop-subdivided, on a floor): the defaults and
+   Embree at 16 and 64 rays, round-robin.
 
 References are cached in bench/results/ (Embree 1024 rays on 700k vertices takes minutes).
 
-Usage: ``python bench/bench_bunnell.py [--quick] [--threads N] [--sections 123]``.
+Usage: ``python bench/bench_bunnell.py [--quick] [--threads N] [--sections 12345]``.
 Timings are wall-clock seconds (best of ``--repeats``) with CPU seconds beside them:
 CPU / wall shows how many cores the run really had on a shared machine.
 """
@@ -254,11 +256,31 @@ def section_timing(surface):
     print(common.markdown_table(["method", "wall s", "CPU s", "cores busy"], rows))
 
 
+def section_bunny(n_vertices):
+    """The second big scene: a smooth scanned object on a floor (bench/common.py)."""
+    surface, desc = common.bunny_on_ground(n_vertices)
+    print(f"\n## 5. Second big scene: {desc}, {surface.n_vertices} vertices "
+          f"(round-robin, best of 3; RMSE / p99 / bias against Embree {REF_RAYS} rays)\n")
+    ref = reference("bunny_on_ground", surface)
+    fns = {
+        "bunnell default": lambda: B.bunnell_ao(surface),
+        "bunnell --passes 2": lambda: B.bunnell_ao(surface, passes=2),
+        "embree 16 rays": lambda: embree_ao(surface, n_rays=16, seed=1).ao,
+        "embree 64 rays": lambda: embree_ao(surface, n_rays=64, seed=1).ao,
+    }
+    res = common.interleaved(fns, repeats=3)
+    rows = []
+    for k, v in res.items():
+        rmse, p99, bias = scores(v.result, ref, surface)
+        rows.append([k, f"{rmse:.4f}", f"{p99:.3f}", f"{bias:+.4f}", f"{v.seconds:.2f}", f"{v.cpu:.2f}"])
+    print(common.markdown_table(["method", "RMSE", "p99", "bias", "wall s", "CPU s"], rows))
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="100k instead of 700k vertices")
     parser.add_argument("--threads", type=int, default=None, help="numba threads (default: all)")
-    parser.add_argument("--sections", default="1234", help="which sections to run, e.g. 13")
+    parser.add_argument("--sections", default="12345", help="which sections to run, e.g. 13")
     parser.add_argument("--repeats", type=int, default=2, help="best of this many runs")
     parser.add_argument("--check", type=int, default=2000, help="receivers checked against the exact sum")
     args = parser.parse_args()
@@ -280,6 +302,8 @@ def main():
         section_scaling(numba.get_num_threads(), args.repeats)
     if "4" in args.sections:
         section_timing(list(all_scenes.values())[-1])
+    if "5" in args.sections:
+        section_bunny(100_000 if args.quick else 700_000)
 
 
 if __name__ == "__main__":

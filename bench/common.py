@@ -116,17 +116,58 @@ def spheres_on_ground_arrays(n_vertices: int) -> tuple[np.ndarray, np.ndarray, s
     return positions, faces, desc
 
 
+def bunny_on_ground_arrays(n_vertices: int) -> tuple[np.ndarray, np.ndarray, str]:
+    """Positions, faces and a description of the second big scene: data/bunny.ply, loop
+    subdivided (trimesh) to about 70% of ``n_vertices``, one unit tall, standing on a
+    square ground grid (y up, 4 units wide) that gets the rest. A smooth scanned object on
+    a floor: the everyday bake, unlike the crevices of :func:`spheres_on_ground_arrays`.
+    """
+    import trimesh
+
+    bunny = load_surface(DATA_DIR / "bunny.ply")
+    v, f = np.asarray(bunny.positions, dtype=np.float64), np.asarray(bunny.faces, dtype=np.int64)
+    level = 0
+    while len(v) * 4 ** (level + 1) <= 0.7 * n_vertices:
+        level += 1
+    if level:
+        v, f = trimesh.remesh.subdivide_loop(v, f, iterations=level)
+    lo, hi = v.min(axis=0), v.max(axis=0)
+    v = (v - [0.5 * (lo[0] + hi[0]), lo[1], 0.5 * (lo[2] + hi[2])]) / (hi[1] - lo[1])
+    rest = max(81, n_vertices - len(v))
+    cells = max(8, int(round(math.sqrt(rest))) - 1)
+    t = np.linspace(-2.0, 2.0, cells + 1)
+    x, z = np.meshgrid(t, t, indexing="ij")
+    grid_v = np.c_[x.ravel(), np.zeros(x.size), z.ravel()]
+    i, j = np.meshgrid(np.arange(cells), np.arange(cells), indexing="ij")
+    a = (i * (cells + 1) + j).ravel()
+    b, c, d = a + cells + 1, a + 1, a + cells + 2
+    grid_f = np.vstack([np.c_[a, d, b], np.c_[a, c, d]])  # faces +y
+    positions = np.concatenate([v, grid_v])
+    faces = np.concatenate([f, grid_f + len(v)])
+    desc = f"bunny.ply loop-subdivided {level}x ({len(v)} vertices) on a {cells}x{cells} ground grid"
+    return positions, faces, desc
+
+
+def bunny_on_ground(n_vertices: int = 700_000, *, cache: bool = True) -> tuple[Any, str]:
+    """The bunny scene as a Surface (cached as .npz under bench/results/)."""
+    return _cached_scene("bunny_on_ground", "bunny", n_vertices, bunny_on_ground_arrays, cache)
+
+
 def spheres_on_ground(n_vertices: int = 700_000, *, cache: bool = True) -> tuple[Any, str]:
     """The procedural scene as a Surface (cached as .npz under bench/results/)."""
+    return _cached_scene("spheres_on_ground", "spheres", n_vertices, spheres_on_ground_arrays, cache)
+
+
+def _cached_scene(key, name, n_vertices, arrays, cache):
     from aobake.mesh import surface_from_arrays
 
-    path = RESULTS_DIR / f"spheres_on_ground_v{SCENE_VERSION}_{n_vertices}.npz"
+    path = RESULTS_DIR / f"{key}_v{SCENE_VERSION}_{n_vertices}.npz"
     if cache and path.exists():
         z = np.load(path, allow_pickle=False)
-        surface = surface_from_arrays(z["positions"], z["faces"], z["normals"], name="spheres")
+        surface = surface_from_arrays(z["positions"], z["faces"], z["normals"], name=name)
         return surface, str(z["desc"])
-    positions, faces, desc = spheres_on_ground_arrays(n_vertices)
-    surface = surface_from_arrays(positions, faces, name="spheres")
+    positions, faces, desc = arrays(n_vertices)
+    surface = surface_from_arrays(positions, faces, name=name)
     if cache:
         RESULTS_DIR.mkdir(parents=True, exist_ok=True)
         tmp = path.with_suffix(f".{os.getpid()}.tmp.npz")

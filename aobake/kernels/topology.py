@@ -5,6 +5,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from .rng import mix64
+
 
 @njit(cache=True, inline="always")
 def _find(parent, i):
@@ -101,18 +103,9 @@ def longest_edges(positions, faces):
         ab = (bx - ax) * (bx - ax) + (by - ay) * (by - ay) + (bz - az) * (bz - az)
         bc = (cx - bx) * (cx - bx) + (cy - by) * (cy - by) + (cz - bz) * (cz - bz)
         ca = (ax - cx) * (ax - cx) + (ay - cy) * (ay - cy) + (az - cz) * (az - cz)
-        if ab > out[a]:
-            out[a] = ab
-        if ab > out[b]:
-            out[b] = ab
-        if bc > out[b]:
-            out[b] = bc
-        if bc > out[c]:
-            out[c] = bc
-        if ca > out[c]:
-            out[c] = ca
-        if ca > out[a]:
-            out[a] = ca
+        out[a] = max(out[a], ab, ca)
+        out[b] = max(out[b], ab, bc)
+        out[c] = max(out[c], bc, ca)
     for i in range(out.shape[0]):
         out[i] = np.sqrt(out[i])
     return out
@@ -242,17 +235,6 @@ def faces_around(faces, vertices, n):
     return owner, face
 
 
-@njit(cache=True, inline="always")
-def _mix64(x):
-    """SplitMix64 finaliser: a bijective avalanche on 64-bit words."""
-    x ^= x >> np.uint64(30)
-    x *= np.uint64(0xBF58476D1CE4E5B9)
-    x ^= x >> np.uint64(27)
-    x *= np.uint64(0x94D049BB133111EB)
-    x ^= x >> np.uint64(31)
-    return x
-
-
 @njit(cache=True)
 def position_keys(positions):
     """(n,) uint64 sort keys that bring equal positions together.
@@ -278,14 +260,14 @@ def position_keys(positions):
     for i in range(n):
         x, y, z = positions[i, 0], positions[i, 1], positions[i, 2]
         if x != x or y != y or z != z:
-            h = _mix64(np.uint64(i) ^ np.uint64(0x5851F42D4C957F2D))
+            h = mix64(np.uint64(i) ^ np.uint64(0x5851F42D4C957F2D))
         else:
             h = np.uint64(0x9E3779B97F4A7C15)
             for c in range(3):
                 b = bits[i, c]
                 if b == negative_zero:
                     b = np.uint64(0)
-                h = _mix64(h ^ b)
+                h = mix64(h ^ b)
         keys[i] = (h & ~low) | np.uint64(i)
     return keys
 

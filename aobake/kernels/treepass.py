@@ -392,6 +392,21 @@ def near_weight(near, j, r2, wr2, px, py, pz, nx, ny, nz, has_normal, gate):
 
 
 @njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+def cosine_pair(near, j, dx, dy, dz, r2, wa, nx, ny, nz, max_d2, min_d2):
+    """(front, back) of near-list disk j for a receiver with a normal, cosine measure
+    (``disk_pair32`` spelled out with selects: a branch would stop the caller's loop
+    from vectorising); 0 when coincident, beyond the maximum distance or inside the
+    inner radius."""
+    a = near[S_A, j]
+    e = -(near[S_MX, j] * dx + near[S_MY, j] * dy + near[S_MZ, j] * dz)
+    g = max(nx * dx + ny * dy + nz * dz, ZERO32)
+    c = wa * g / (r2 * (PI32 * r2 + a))
+    skip = (r2 <= np.float32(COINCIDENT_REL) * a) | (r2 > max_d2) | (r2 < min_d2)
+    c = ZERO32 if skip else c
+    return c * max(e, ZERO32), c * max(-e, ZERO32)
+
+
+@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
 def near_disk_sums(near, n_near, px, py, pz, nx, ny, nz, has_normal, measure, max_d2, min_d2, wr2,
                    leveled, gate):
     """(front, back) of the near list's disks at one receiver, near-field ones included
@@ -417,13 +432,9 @@ def near_disk_sums(near, n_near, px, py, pz, nx, ny, nz, has_normal, measure, ma
             dy = near[S_Y, j] - py
             dz = near[S_Z, j] - pz
             r2 = dx * dx + dy * dy + dz * dz
-            a = near[S_A, j]
-            e = -(near[S_MX, j] * dx + near[S_MY, j] * dy + near[S_MZ, j] * dz)
-            g = max(nx * dx + ny * dy + nz * dz, ZERO32)
-            c = near[S_WA, j] * g / (r2 * (PI32 * r2 + a))
-            c = ZERO32 if (r2 <= coincident * a) | (r2 > max_d2) | (r2 < min_d2) else c
-            front += c * max(e, ZERO32)
-            back += c * max(-e, ZERO32)
+            f, b = cosine_pair(near, j, dx, dy, dz, r2, near[S_WA, j], nx, ny, nz, max_d2, min_d2)
+            front += f
+            back += b
         return front, back
     if measure == MEASURE_COSINE and has_normal and gate > ZERO32:
         for j in range(n_near):
@@ -431,31 +442,22 @@ def near_disk_sums(near, n_near, px, py, pz, nx, ny, nz, has_normal, measure, ma
             dy = near[S_Y, j] - py
             dz = near[S_Z, j] - pz
             r2 = dx * dx + dy * dy + dz * dz
-            a = near[S_A, j]
             wa = level_weight(near, j, r2, t0, t1, t2, t3, t4, t5)
             wa = gated_weight(near, j, r2, wa, px, py, pz, nx, ny, nz, has_normal, gate)
-            e = -(near[S_MX, j] * dx + near[S_MY, j] * dy + near[S_MZ, j] * dz)
-            g = max(nx * dx + ny * dy + nz * dz, ZERO32)
-            c = wa * g / (r2 * (PI32 * r2 + a))
-            c = ZERO32 if (r2 <= coincident * a) | (r2 > max_d2) | (r2 < min_d2) else c
-            front += c * max(e, ZERO32)
-            back += c * max(-e, ZERO32)
+            f, b = cosine_pair(near, j, dx, dy, dz, r2, wa, nx, ny, nz, max_d2, min_d2)
+            front += f
+            back += b
         return front, back
     if measure == MEASURE_COSINE and has_normal:
-        # disk_pair32 spelled out: a branch inside the loop would stop vectorisation
         for j in range(n_near):
             dx = near[S_X, j] - px
             dy = near[S_Y, j] - py
             dz = near[S_Z, j] - pz
             r2 = dx * dx + dy * dy + dz * dz
-            a = near[S_A, j]
             wa = level_weight(near, j, r2, t0, t1, t2, t3, t4, t5)
-            e = -(near[S_MX, j] * dx + near[S_MY, j] * dy + near[S_MZ, j] * dz)
-            g = max(nx * dx + ny * dy + nz * dz, ZERO32)
-            c = wa * g / (r2 * (PI32 * r2 + a))
-            c = ZERO32 if (r2 <= coincident * a) | (r2 > max_d2) | (r2 < min_d2) else c
-            front += c * max(e, ZERO32)
-            back += c * max(-e, ZERO32)
+            f, b = cosine_pair(near, j, dx, dy, dz, r2, wa, nx, ny, nz, max_d2, min_d2)
+            front += f
+            back += b
         return front, back
     for j in range(n_near):
         dx = near[S_X, j] - px
@@ -478,31 +480,38 @@ def near_disk_sums(near, n_near, px, py, pz, nx, ny, nz, has_normal, measure, ma
 
 
 @njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+def bin_add(acc, f, b, d2, dx, dy, dz, r0, r1, r2, r3, r4):
+    """One term added to the binned accumulators ``acc`` (15 float32: front per bin,
+    back per bin, then the first moment): bin k takes it when ``d2 < r_k`` (the last bin
+    always). A tuple of scalars, so the callers' loops still vectorise."""
+    m0 = np.float32(d2 < r0)
+    m1 = np.float32(d2 < r1)
+    m2 = np.float32(d2 < r2)
+    m3 = np.float32(d2 < r3)
+    m4 = np.float32(d2 < r4)
+    t = f + b
+    return (
+        acc[0] + f * m0, acc[1] + f * m1, acc[2] + f * m2, acc[3] + f * m3, acc[4] + f * m4,
+        acc[5] + f,
+        acc[6] + b * m0, acc[7] + b * m1, acc[8] + b * m2, acc[9] + b * m3, acc[10] + b * m4,
+        acc[11] + b,
+        acc[12] + t * dx, acc[13] + t * dy, acc[14] + t * dz,
+    )
+
+
+@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
 def binned_sums(near, n_near, far, n_far, px, py, pz, nx, ny, nz, has_normal, measure, max_d2,
                 min_d2, wr2, br2, leveled, gate, acc, first):
     """Like :func:`near_disk_sums` plus :func:`far_sums`, but cumulative by distance:
     ``acc[side, b] += term`` for every bin b with ``r^2 < br2[b]`` (the last bin takes
     everything; far nodes by their centre's distance), and ``first += (front + back
-    term) d`` (d: emitter - receiver). Accumulators spelled out and the cosine case in a
-    loop of its own, so it vectorises."""
+    term) d`` (d: emitter - receiver). The accumulators are scalars (:func:`bin_add`)
+    and each case has a loop of its own, so they vectorise."""
     coincident = np.float32(COINCIDENT_REL)
     t0, t1, t2, t3, t4, t5 = wr2[0], wr2[1], wr2[2], wr2[3], wr2[4], wr2[5]
     r0, r1, r2_, r3, r4 = br2[0], br2[1], br2[2], br2[3], br2[4]
-    f0 = ZERO32
-    f1 = ZERO32
-    f2 = ZERO32
-    f3 = ZERO32
-    f4 = ZERO32
-    f5 = ZERO32
-    b0 = ZERO32
-    b1 = ZERO32
-    b2 = ZERO32
-    b3 = ZERO32
-    b4 = ZERO32
-    b5 = ZERO32
-    sx = ZERO32
-    sy = ZERO32
-    sz = ZERO32
+    z = ZERO32
+    s = (z, z, z, z, z, z, z, z, z, z, z, z, z, z, z)
     if measure == MEASURE_COSINE and has_normal and gate == ZERO32:
         # gated passes take the loop below (a branch in this one stops vectorisation)
         for j in range(n_near):
@@ -510,35 +519,10 @@ def binned_sums(near, n_near, far, n_far, px, py, pz, nx, ny, nz, has_normal, me
             dy = near[S_Y, j] - py
             dz = near[S_Z, j] - pz
             d2 = dx * dx + dy * dy + dz * dz
-            a = near[S_A, j]
             # thresholds are inf without levels: level 0, and the loads are never used
             wa = level_weight(near, j, d2, t0, t1, t2, t3, t4, t5) if leveled else near[S_WA, j]
-            e = -(near[S_MX, j] * dx + near[S_MY, j] * dy + near[S_MZ, j] * dz)
-            c = wa * max(nx * dx + ny * dy + nz * dz, ZERO32) / (d2 * (PI32 * d2 + a))
-            c = ZERO32 if (d2 <= coincident * a) | (d2 > max_d2) | (d2 < min_d2) else c
-            f = c * max(e, ZERO32)
-            b = c * max(-e, ZERO32)
-            m = np.float32(d2 < r0)
-            f0 += f * m
-            b0 += b * m
-            m = np.float32(d2 < r1)
-            f1 += f * m
-            b1 += b * m
-            m = np.float32(d2 < r2_)
-            f2 += f * m
-            b2 += b * m
-            m = np.float32(d2 < r3)
-            f3 += f * m
-            b3 += b * m
-            m = np.float32(d2 < r4)
-            f4 += f * m
-            b4 += b * m
-            f5 += f
-            b5 += b
-            t = f + b
-            sx += t * dx
-            sy += t * dy
-            sz += t * dz
+            f, b = cosine_pair(near, j, dx, dy, dz, d2, wa, nx, ny, nz, max_d2, min_d2)
+            s = bin_add(s, f, b, d2, dx, dy, dz, r0, r1, r2_, r3, r4)
     else:
         for j in range(n_near):
             dx = near[S_X, j] - px
@@ -555,27 +539,7 @@ def binned_sums(near, n_near, far, n_far, px, py, pz, nx, ny, nz, has_normal, me
                 dx, dy, dz, d2, near[S_MX, j], near[S_MY, j], near[S_MZ, j], wa, a, nx, ny, nz,
                 has_normal, measure,
             )
-            m = np.float32(d2 < r0)
-            f0 += f * m
-            b0 += b * m
-            m = np.float32(d2 < r1)
-            f1 += f * m
-            b1 += b * m
-            m = np.float32(d2 < r2_)
-            f2 += f * m
-            b2 += b * m
-            m = np.float32(d2 < r3)
-            f3 += f * m
-            b3 += b * m
-            m = np.float32(d2 < r4)
-            f4 += f * m
-            b4 += b * m
-            f5 += f
-            b5 += b
-            t = f + b
-            sx += t * dx
-            sy += t * dy
-            sz += t * dz
+            s = bin_add(s, f, b, d2, dx, dy, dz, r0, r1, r2_, r3, r4)
     # one loop per case: a branch inside would stop vectorisation
     if gate > ZERO32:
         for j in range(n_far):
@@ -585,27 +549,7 @@ def binned_sums(near, n_near, far, n_far, px, py, pz, nx, ny, nz, has_normal, me
             d2 = dx * dx + dy * dy + dz * dz
             f, b = far_pair_gated(far, j, dx, dy, dz, d2, px, py, pz, nx, ny, nz, has_normal,
                                   measure, gate)
-            m = np.float32(d2 < r0)
-            f0 += f * m
-            b0 += b * m
-            m = np.float32(d2 < r1)
-            f1 += f * m
-            b1 += b * m
-            m = np.float32(d2 < r2_)
-            f2 += f * m
-            b2 += b * m
-            m = np.float32(d2 < r3)
-            f3 += f * m
-            b3 += b * m
-            m = np.float32(d2 < r4)
-            f4 += f * m
-            b4 += b * m
-            f5 += f
-            b5 += b
-            t = f + b
-            sx += t * dx
-            sy += t * dy
-            sz += t * dz
+            s = bin_add(s, f, b, d2, dx, dy, dz, r0, r1, r2_, r3, r4)
     else:
         for j in range(n_far):
             dx = far[F_X, j] - px
@@ -613,42 +557,13 @@ def binned_sums(near, n_near, far, n_far, px, py, pz, nx, ny, nz, has_normal, me
             dz = far[F_Z, j] - pz
             d2 = dx * dx + dy * dy + dz * dz
             f, b = far_pair(far, j, dx, dy, dz, d2, nx, ny, nz, has_normal, measure)
-            m = np.float32(d2 < r0)
-            f0 += f * m
-            b0 += b * m
-            m = np.float32(d2 < r1)
-            f1 += f * m
-            b1 += b * m
-            m = np.float32(d2 < r2_)
-            f2 += f * m
-            b2 += b * m
-            m = np.float32(d2 < r3)
-            f3 += f * m
-            b3 += b * m
-            m = np.float32(d2 < r4)
-            f4 += f * m
-            b4 += b * m
-            f5 += f
-            b5 += b
-            t = f + b
-            sx += t * dx
-            sy += t * dy
-            sz += t * dz
-    first[0] += sx
-    first[1] += sy
-    first[2] += sz
-    acc[0, 0] += f0
-    acc[0, 1] += f1
-    acc[0, 2] += f2
-    acc[0, 3] += f3
-    acc[0, 4] += f4
-    acc[0, 5] += f5
-    acc[1, 0] += b0
-    acc[1, 1] += b1
-    acc[1, 2] += b2
-    acc[1, 3] += b3
-    acc[1, 4] += b4
-    acc[1, 5] += b5
+            s = bin_add(s, f, b, d2, dx, dy, dz, r0, r1, r2_, r3, r4)
+    for k in range(6):
+        acc[0, k] += s[k]
+        acc[1, k] += s[6 + k]
+    first[0] += s[12]
+    first[1] += s[13]
+    first[2] += s[14]
 
 
 @njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
