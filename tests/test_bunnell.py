@@ -999,3 +999,25 @@ def test_cli_help_states_the_library_defaults():
     assert f"(0 = disks only) [default: {B.DEFAULT_NEAR:g}]" in text
     assert f"local edge lengths [default: {hybrid.DEFAULT_REACH:g}]; --rays defaults to {hybrid.DEFAULT_HYBRID_RAYS}" in text
     assert "occlusion passes [default: 1]" in text
+
+
+def test_shared_passes_follow_the_full_ones():
+    """Passes 2..K at one vertex per leaf and normal group, carried over as what they
+    remove: close to every vertex computing them (the correction's error is a fraction
+    of the correction), never darker than pass 1, and the vertices that do not cast
+    (no normal, isolated) are evaluated themselves."""
+    s = _balls_over_floor()
+    dense = combine_meshes(
+        icosphere(3, center=(-1.1, 0.0, 0.2)), icosphere(3, center=(1.1, 0.0, 0.2)),
+        grid(30, 3.0, -1.0),
+    )
+    for scene in (s, dense, small_scene()):
+        one = B.bunnell_ao(scene)
+        shared = B.bunnell_ao(scene, passes=2)
+        full = B.bunnell_ao(scene, passes=2, share_weights=False)
+        assert np.all(shared >= one - 1e-6) and np.all(full >= one - 1e-6)
+        correction = np.sqrt(np.mean((full - one) ** 2))
+        assert correction > 1e-3
+        assert np.sqrt(np.mean((shared - full) ** 2)) < 0.5 * correction
+    extra = slice(-3, None)  # small_scene's flipped copy's no-normal and isolated vertices
+    np.testing.assert_allclose(shared[extra], full[extra], rtol=0, atol=1e-3)
