@@ -67,11 +67,11 @@ DEFAULT_NEAR = 4.0
 # bench/bench_bunnell.py (section 1): see the README table.
 DEFAULT_DAMPING = 1.0
 DEFAULT_PASS_REACH = 0.5
-# Passes >= 2 with a tree: the passes before the last are evaluated at one vertex per tree
-# leaf (the one nearest its centre), whose weights the leaf's vertices with a normal within
-# arccos(SHARE_COS) of its own share; the others are evaluated themselves. Measured in
-# bench/bench_bunnell.py: 7% of the vertices evaluated on the 100k scene, RMSE against the
-# reference within 1e-4 of every vertex evaluated on all eight scenes (0.6e-3 on box_stack).
+# Passes >= 2 with a tree: passes 2..K are evaluated at one vertex per tree leaf (the one
+# nearest its centre), and what they remove is carried over to the leaf's vertices with a
+# normal within arccos(SHARE_COS) of its own; the others are evaluated themselves. Measured
+# in bench/bench_bunnell.py: 6.7% of the 700k scene evaluated, 4.0 instead of 4.9 s, RMSE
+# against the reference within 1e-3 of every vertex evaluated on all eight scenes.
 SHARE_COS = 0.9
 # Emitters per leaf (and receivers per bucket): measured in bench/bench_bunnell.py (section
 # 2): 16, 32 and 64 cost the same CPU time per pass at 700k vertices (+-3%); 32 and 64 were
@@ -262,7 +262,7 @@ class _Pass:
             recv_order,
             bucket_start,
             bounds,
-            np.empty((slots, _tp.near_rows(_k.N_LEVELS), k), dtype=np.float32),
+            np.empty((slots, _tp.NEAR_ROWS, k), dtype=np.float32),
             np.empty((slots, 2, k), dtype=np.int64),
             np.empty((slots, _tp.FAR_ROWS, m), dtype=np.float32),
         )
@@ -352,8 +352,8 @@ class _Pass:
         return out, first
 
 
-def weight_representatives(elements: DiskElements, tree: ClusterTree) -> IndexArray:
-    """(n,) vertex whose pass weights each vertex takes (itself for non-emitters), see
+def pass_representatives(elements: DiskElements, tree: ClusterTree) -> IndexArray:
+    """(n,) vertex whose later passes each vertex takes (itself for non-emitters), see
     :func:`aobake.kernels.hierarchy.leaf_representatives` (SHARE_COS)."""
     rep_of = np.arange(elements.n_vertices, dtype=np.int64)
     _h.leaf_representatives(
@@ -402,7 +402,7 @@ def occlusion_passes(
     damping: float = DEFAULT_DAMPING,
     pass_reach: float = DEFAULT_PASS_REACH,
     gate: float = PASS_GATE_WIDTH,
-    share_weights: bool = True,
+    share_passes: bool = True,
     measure: str = "cosine",
     max_distance: float | None = None,
     inner: FloatArray | None = None,
@@ -441,10 +441,10 @@ def occlusion_passes(
         > 0, or inf (weights from the whole previous pass, as published).
     gate : float
         >= 0: the gate's width (``PASS_GATE_WIDTH``); 0 = no gate (as published).
-    share_weights : bool
-        With a tree and passes >= 2: evaluate the passes before the last at one vertex
-        per leaf and normal group only (:func:`weight_representatives`); their rows of
-        ``occlusion`` are then the representatives' values. False: every vertex.
+    share_passes : bool
+        With a tree and passes >= 2: evaluate passes 2..K at one vertex per leaf and
+        normal group only (:func:`pass_representatives`) and carry what they remove
+        over to the others (pass 1 stays at every vertex). False: every vertex.
     measure : {"cosine", "uniform"}
     max_distance : float or None
         In mesh units; disks farther than this from the receiver are ignored.
@@ -478,9 +478,9 @@ def occlusion_passes(
         progress.advance(passes * n)
         progress.finish()
         return occlusion
-    share = share_weights and tree is not None and passes > 1
+    share = share_passes and tree is not None and passes > 1
     if share:
-        rep_of = weight_representatives(elements, tree)
+        rep_of = pass_representatives(elements, tree)
         casts = np.zeros(n, dtype=np.bool_)
         casts[tree.order] = True
         # representatives in tree order (neighbours), then the vertices that do not cast
@@ -632,7 +632,7 @@ def bunnell_ao(
     damping: float = DEFAULT_DAMPING,
     pass_reach: float = DEFAULT_PASS_REACH,
     gate: float = PASS_GATE_WIDTH,
-    share_weights: bool = True,
+    share_passes: bool = True,
     measure: str = "cosine",
     max_distance: float | None = None,
     combine: str = "last",
@@ -688,10 +688,10 @@ def bunnell_ao(
         scheme.
     gate : float, optional
         Width of the pass weights' gate (>= 0, 0 = ungated; :func:`occlusion_passes`).
-    share_weights : bool, optional
-        Passes before the last at one vertex per leaf and normal group
-        (:func:`occlusion_passes`); only with ``combine="last"`` (the blends use the
-        second-to-last pass at every vertex).
+    share_passes : bool, optional
+        Passes 2..K at one vertex per leaf and normal group (:func:`occlusion_passes`);
+        only with ``combine="last"`` (the blends use the second-to-last pass at every
+        vertex).
     measure : {"cosine", "uniform"}, optional
     max_distance : float or None, optional
         Ignore disks whose centre is farther than this (mesh units); None = unbounded.
@@ -759,7 +759,7 @@ def bunnell_ao(
         damping=damping,
         pass_reach=pass_reach,
         gate=gate,
-        share_weights=bool(share_weights) and combine == "last",
+        share_passes=bool(share_passes) and combine == "last",
         measure=measure,
         max_distance=max_distance,
         threads=threads,

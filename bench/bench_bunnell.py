@@ -107,7 +107,7 @@ def variants(n_vertices: int):
         ("theta 2", dict(theta=2.0)),
         ("theta 8", dict(theta=8.0)),
         ("passes 2", dict(passes=2)),
-        ("passes 2, every vertex (share_weights off)", dict(passes=2, share_weights=False)),
+        ("passes 2, every vertex (share_passes off)", dict(passes=2, share_passes=False)),
         ("passes 2, ungated (gate 0)", dict(passes=2, gate=0.0)),
         ("passes 2, gate 0.03", dict(passes=2, gate=0.03)),
         ("passes 3", dict(passes=3)),

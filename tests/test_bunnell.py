@@ -286,7 +286,7 @@ def test_hierarchy_with_huge_theta_is_the_exact_sum(measure, max_distance, leaf_
     s = small_scene()
     e = B.build_elements(s)
     tree = B.build_tree(e, leaf_size=leaf_size)
-    kw = dict(passes=3, measure=measure, max_distance=max_distance, share_weights=False)
+    kw = dict(passes=3, measure=measure, max_distance=max_distance, share_passes=False)
     exact = B.occlusion_passes(e, None, **kw)
     for theta in (1e12, np.inf):
         approx = B.occlusion_passes(e, tree, theta=theta, **kw)
@@ -397,7 +397,7 @@ def test_combine_sides():
 def test_later_passes_lighten_double_shadows(pass_reach, gate):
     s = _balls_over_floor()
     e = B.build_elements(s)
-    kw = dict(passes=2, pass_reach=pass_reach, gate=gate, share_weights=False)
+    kw = dict(passes=2, pass_reach=pass_reach, gate=gate, share_passes=False)
     occ = B.occlusion_passes(e, None, **kw)
     assert np.all(occ[1] <= occ[0] + 1e-15)
     assert occ[1].mean() < occ[0].mean() and (occ[0] - occ[1]).max() > 5e-3
@@ -426,12 +426,12 @@ def test_single_layer_does_not_collapse():
     tree = B.build_tree(e, leaf_size=4)
     for share in (False, True):  # row 0 is the representatives' pass 1 when shared
         one = B.occlusion_passes(e, tree, theta=np.inf)[0]
-        two = B.occlusion_passes(e, tree, passes=2, theta=np.inf, share_weights=share)[1]
+        two = B.occlusion_passes(e, tree, passes=2, theta=np.inf, share_passes=share)[1]
         np.testing.assert_allclose(two, one, rtol=0, atol=1e-6)
         # clusters of both plates put their occluder centroids a little off the plane
         # (more so at the shared passes' opening parameter, theta / 2)
         one = B.occlusion_passes(e, tree)[0]
-        two = B.occlusion_passes(e, tree, passes=2, share_weights=share)[1]
+        two = B.occlusion_passes(e, tree, passes=2, share_passes=share)[1]
         np.testing.assert_allclose(two, one, rtol=0, atol=5e-3)
         assert np.all(two <= one + 1e-6)
 
@@ -885,7 +885,7 @@ def test_progress_counts_every_receiver_of_every_pass():
     s = touching_spheres()
     for exact, share in ((False, False), (True, True), (False, True)):
         rec = Recorder()
-        B.bunnell_ao(s, passes=3, progress=rec, exact=exact, share_weights=share)
+        B.bunnell_ao(s, passes=3, progress=rec, exact=exact, share_passes=share)
         assert rec.total == rec.done == 3 * s.n_vertices and rec.finished
 
 
@@ -1014,7 +1014,7 @@ def test_shared_passes_follow_the_full_ones():
     for scene in (s, dense, small_scene()):
         one = B.bunnell_ao(scene)
         shared = B.bunnell_ao(scene, passes=2)
-        full = B.bunnell_ao(scene, passes=2, share_weights=False)
+        full = B.bunnell_ao(scene, passes=2, share_passes=False)
         assert np.all(shared >= one - 1e-6) and np.all(full >= one - 1e-6)
         correction = np.sqrt(np.mean((full - one) ** 2))
         assert correction > 1e-3

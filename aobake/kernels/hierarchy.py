@@ -336,7 +336,7 @@ def refit_nodes(emitters, weights, occluders, skip, start, stop, nodes, moments)
 
 @njit(cache=True, fastmath=FASTMATH, error_model="numpy")
 def leaf_representatives(positions, normals, areas, order, skip, start, stop, cos_min, rep_of):
-    """Which emitter's pass weights each emitter takes: per leaf, the emitter nearest the
+    """Which emitter's later passes each emitter takes: per leaf, the emitter nearest the
     leaf's area-weighted centre (its representative) stands for every emitter of the leaf
     whose normal is within ``arccos(cos_min)`` of its own; the others stand for
     themselves (a crease or a contact splits the leaf).

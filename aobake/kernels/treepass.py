@@ -78,9 +78,8 @@ assert N_BINS == 6, "update level_weight and binned_sums for the new PASS_RADII"
 CAND_SLACK = 1e-5
 
 
-def near_rows(levels: int) -> int:
-    """Rows of the near-list scratch for ``levels`` (<= N_LEVELS) weight levels."""
-    return S_O + 3 + 0 * levels
+# Rows of the near-list scratch: the weight rows are laid out for N_LEVELS levels.
+NEAR_ROWS = S_O + 3
 
 
 @njit(cache=True, fastmath=FASTMATH, error_model="numpy")
@@ -612,7 +611,7 @@ def hierarchy_pass(tree, emitters, receivers, near_field, buckets, span, options
     buckets : tuple
         ``(order (n,), bucket_start (nb + 1,), bounds (nb, 5), near_buf, near_idx,
         far_buf)``: receivers in bucket order, bucket ranges and bounds
-        (:func:`bucket_bounds`), and scratch ``(T, near_rows, k)`` float32,
+        (:func:`bucket_bounds`), and scratch ``(T, NEAR_ROWS, k)`` float32,
         ``(T, 2, k)`` int64, ``(T, FAR_ROWS, m)`` float32 for T >= the number of numba
         threads.
     span : tuple
