@@ -364,6 +364,18 @@ def den_floor(model):
 OMEGA_MIN = 1e-9
 
 
+@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+def _damped_step(h, g, mu, eps, kkt, rhs):
+    """Levenberg-Marquardt step of a 3-parameter fit: solve ``(H + mu diag(H) + eps I)
+    x = -g`` into ``rhs`` (``kkt``: scratch); False when singular."""
+    for a in range(3):
+        rhs[a] = -g[a]
+        for b in range(3):
+            kkt[a, b] = h[a, b]
+        kkt[a, a] += mu * h[a, a] + eps
+    return _solve_small(kkt, rhs, 3)
+
+
 @njit(cache=True, fastmath=FASTMATH, error_model="numpy")
 def _solve_small(m, b, n):
     """Solve m[:n, :n] x = b[:n] in place (Gaussian elimination, partial pivoting).
@@ -527,14 +539,8 @@ def _refine_omega(s, om, ok, q, slo, beta, iters, work, model):
                     h[a, b] += q[i] * phi[a] * phi[b]
         accepted = False
         for _try in range(6):
-            kkt = work[2]
             rhs = work[3, :, 0]
-            for a in range(3):
-                rhs[a] = -g[a]
-                for b in range(3):
-                    kkt[a, b] = h[a, b]
-                kkt[a, a] += mu * h[a, a] + 1e-15
-            if not _solve_small(kkt, rhs, 3):
+            if not _damped_step(h, g, mu, 1e-15, work[2], rhs):
                 mu *= 10.0
                 continue
             for a in range(3):
@@ -623,14 +629,8 @@ def _refine_centre(c, radii, unit, dx, dy, dz, wts, lam, limit, iters, work):
                     h[p, q] += w * ((1.0 if p == q else 0.0) - u[p] * u[q]) / (ln * ln)
         accepted = False
         for _try in range(6):
-            kkt = work[4]
             rhs = work[5, :, 0]
-            for p in range(3):
-                rhs[p] = -g[p]
-                for q in range(3):
-                    kkt[p, q] = h[p, q]
-                kkt[p, p] += mu * h[p, p] + 1e-300
-            if not _solve_small(kkt, rhs, 3):
+            if not _damped_step(h, g, mu, 1e-300, work[4], rhs):
                 mu *= 10.0
                 continue
             for p in range(3):

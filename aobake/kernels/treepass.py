@@ -391,6 +391,23 @@ def near_weight(near, j, r2, wr2, px, py, pz, nx, ny, nz, has_normal, gate):
 
 
 @njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+def near_pair(near, j, dx, dy, dz, r2, wr2, px, py, pz, nx, ny, nz, has_normal, measure, gate,
+              max_d2, min_d2):
+    """(front, back) of near-list disk j at the receiver (any measure, with or without a
+    normal; weight from :func:`near_weight`); 0 when coincident, beyond the maximum
+    distance or inside the inner radius. Branches: for the loops that do not vectorise
+    anyway, and the near-field swap."""
+    a = near[S_A, j]
+    if r2 <= np.float32(COINCIDENT_REL) * a or r2 > max_d2 or r2 < min_d2:
+        return ZERO32, ZERO32
+    wa = near_weight(near, j, r2, wr2, px, py, pz, nx, ny, nz, has_normal, gate)
+    return disk_pair32(
+        dx, dy, dz, r2, near[S_MX, j], near[S_MY, j], near[S_MZ, j], wa, a, nx, ny, nz,
+        has_normal, measure,
+    )
+
+
+@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
 def cosine_pair(near, j, dx, dy, dz, r2, wa, nx, ny, nz, max_d2, min_d2):
     """(front, back) of near-list disk j for a receiver with a normal, cosine measure
     (``disk_pair32`` spelled out with selects: a branch would stop the caller's loop
@@ -422,7 +439,6 @@ def near_disk_sums(near, n_near, px, py, pz, nx, ny, nz, has_normal, measure, ma
     """
     front = ZERO32
     back = ZERO32
-    coincident = np.float32(COINCIDENT_REL)
     t0, t1, t2, t3, t4, t5 = wr2[0], wr2[1], wr2[2], wr2[3], wr2[4], wr2[5]
     if measure == MEASURE_COSINE and has_normal and not leveled:
         # pass 1: one weight for every level
@@ -463,16 +479,8 @@ def near_disk_sums(near, n_near, px, py, pz, nx, ny, nz, has_normal, measure, ma
         dy = near[S_Y, j] - py
         dz = near[S_Z, j] - pz
         r2 = dx * dx + dy * dy + dz * dz
-        a = near[S_A, j]
-        if r2 <= coincident * a or r2 > max_d2 or r2 < min_d2:
-            continue
-        wa = level_weight(near, j, r2, t0, t1, t2, t3, t4, t5)
-        if gate > ZERO32:
-            wa = gated_weight(near, j, r2, wa, px, py, pz, nx, ny, nz, has_normal, gate)
-        f, b = disk_pair32(
-            dx, dy, dz, r2, near[S_MX, j], near[S_MY, j], near[S_MZ, j], wa, a, nx, ny, nz,
-            has_normal, measure,
-        )
+        f, b = near_pair(near, j, dx, dy, dz, r2, wr2, px, py, pz, nx, ny, nz, has_normal,
+                         measure, gate, max_d2, min_d2)
         front += f
         back += b
     return front, back
@@ -506,7 +514,6 @@ def binned_sums(near, n_near, far, n_far, px, py, pz, nx, ny, nz, has_normal, me
     everything; far nodes by their centre's distance), and ``first += (front + back
     term) d`` (d: emitter - receiver). The accumulators are scalars (:func:`bin_add`)
     and each case has a loop of its own, so they vectorise."""
-    coincident = np.float32(COINCIDENT_REL)
     t0, t1, t2, t3, t4, t5 = wr2[0], wr2[1], wr2[2], wr2[3], wr2[4], wr2[5]
     r0, r1, r2_, r3, r4 = br2[0], br2[1], br2[2], br2[3], br2[4]
     z = ZERO32
@@ -528,16 +535,8 @@ def binned_sums(near, n_near, far, n_far, px, py, pz, nx, ny, nz, has_normal, me
             dy = near[S_Y, j] - py
             dz = near[S_Z, j] - pz
             d2 = dx * dx + dy * dy + dz * dz
-            a = near[S_A, j]
-            if d2 <= coincident * a or d2 > max_d2 or d2 < min_d2:
-                continue
-            wa = level_weight(near, j, d2, t0, t1, t2, t3, t4, t5)
-            if gate > ZERO32:
-                wa = gated_weight(near, j, d2, wa, px, py, pz, nx, ny, nz, has_normal, gate)
-            f, b = disk_pair32(
-                dx, dy, dz, d2, near[S_MX, j], near[S_MY, j], near[S_MZ, j], wa, a, nx, ny, nz,
-                has_normal, measure,
-            )
+            f, b = near_pair(near, j, dx, dy, dz, d2, wr2, px, py, pz, nx, ny, nz, has_normal,
+                             measure, gate, max_d2, min_d2)
             s = bin_add(s, f, b, d2, dx, dy, dz, r0, r1, r2_, r3, r4)
     # one loop per case: a branch inside would stop vectorisation
     if gate > ZERO32:
@@ -705,17 +704,9 @@ def hierarchy_pass(tree, emitters, receivers, near_field, buckets, span, options
                     ey = nb[S_Y, t] - py32
                     ez = nb[S_Z, t] - pz32
                     r2 = ex * ex + ey * ey + ez * ez
-                    a = nb[S_A, t]
-                    if r2 <= np.float32(COINCIDENT_REL) * a or r2 > max_d2 or r2 < np.float32(min_d2):
-                        df = ZERO32
-                        db = ZERO32
-                    else:
-                        df, db = disk_pair32(
-                            ex, ey, ez, r2, nb[S_MX, t], nb[S_MY, t], nb[S_MZ, t],
-                            near_weight(nb, t, r2, wr2, px32, py32, pz32, nx32, ny32, nz32,
-                                        has_normal, gate_),
-                            a, nx32, ny32, nz32, has_normal, measure,
-                        )
+                    df, db = near_pair(nb, t, ex, ey, ez, r2, wr2, px32, py32, pz32, nx32, ny32,
+                                       nz32, has_normal, measure, gate_, max_d2,
+                                       np.float32(min_d2))
                     if binned_i:  # the disk's share of the first moment goes with it
                         both = np.float64(df) + np.float64(db)
                         fst[0] -= both * ex
