@@ -51,10 +51,15 @@ SIDES = ("max", "front")
 
 # Opening parameter: a cluster of area A and bounding radius b is used as one emitter when
 # every receiver of a bucket is farther than sqrt(theta * max(A, pi b^2)) from its centre.
-# Measured in bench/bench_bunnell.py (700k vertices): RMSE against the exact sum 0.017 /
-# 0.009 / 0.004 for theta 2 / 4 / 8 at 0.6x / 1x / 1.3x the time of 4; against the
-# reference theta 2 doubles the error on facing plates (0.018 vs 0.007), 8 gains nothing.
-DEFAULT_THETA = 4.0
+# Measured in bench/bench_bunnell.py with per-direction saturation (the default): theta 2
+# / 4 take 0.8x / 1.4x the time of plain theta 4 on 700k vertices at RMSE 0.024 / 0.016
+# against the reference (plain theta 4: 0.061); theta 4 halves the error of 2 on facing
+# plates (0.010 vs 0.021) and touching spheres. 2 is the default: the fast method at the
+# accuracy of ~40 rays; theta 4 for small meshes.
+DEFAULT_THETA = 2.0
+# The theta of the plain-sum measurements (hybrid's far field, the benchmark's rows
+# without saturation).
+PLAIN_THETA = 4.0
 # Near field: disks closer than sqrt(NEAR * A) to the receiver are replaced by the exact
 # form factor of their barycentric cells. Measured in bench/bench_bunnell.py: near 1
 # leaves contact errors (sphere on ground 0.046 vs 0.032 RMSE), near 16 gains <= 0.001
@@ -223,13 +228,14 @@ class _Pass:
         inner=None,
         pass_reach=DEFAULT_PASS_REACH,
         gate=PASS_GATE_WIDTH,
+        directional=True,
     ):
         self.elements = elements
         self.tree = tree
         bin_r2 = np.asarray(PASS_RADII, dtype=np.float64) ** 2
         with np.errstate(divide="ignore"):
             weight_r2 = np.ascontiguousarray(bin_r2 / pass_reach**2)
-        self.options = (code, reach, near, False, bin_r2, weight_r2, False, float(gate))
+        self.options = (code, reach, near, False, bin_r2, weight_r2, False, float(gate), bool(directional))
         inner = np.zeros(elements.n_vertices) if inner is None else inner
         self.receivers = (
             elements.points,
@@ -300,7 +306,7 @@ class _Pass:
         options = self.options[:3] + (bool(binned),) + self.options[4:6] + (leveled,) + self.options[7:]
         occluders = np.ascontiguousarray(e.positions if occluders is None else occluders)
         out = np.zeros((n, 2, _k.N_BINS))
-        first = np.zeros((n, 3))
+        first = np.zeros((n, 4))
         if self.tree is None:
             disks = (e.positions, e.normals, e.areas, weights, occluders)
             cells = (e.corner_start, e.corners, cell_weights)
@@ -402,6 +408,7 @@ def occlusion_passes(
     damping: float = DEFAULT_DAMPING,
     pass_reach: float = DEFAULT_PASS_REACH,
     gate: float = PASS_GATE_WIDTH,
+    directional: bool = True,
     share_passes: bool = True,
     measure: str = "cosine",
     max_distance: float | None = None,
@@ -441,6 +448,14 @@ def occlusion_passes(
         > 0, or inf (weights from the whole previous pass, as published).
     gate : float
         >= 0: the gate's width (``PASS_GATE_WIDTH``); 0 = no gate (as published).
+    directional : bool
+        Per-direction saturation (cosine measure, receivers with a normal): every pass's
+        disk and cluster terms are also spread over DIRECTION_SECTORS azimuth sectors x 2
+        elevation bands of the receiver's hemisphere, each of cosine-weighted measure
+        ``1 / (2 DIRECTION_SECTORS)``, and the total loses what any bin holds beyond that
+        (layers stacked in one direction count once, as far as the bins resolve them);
+        the near-field cells are not binned. The distance bins below the total stay
+        plain sums. False: the plain sum (as published).
     share_passes : bool
         With a tree and passes >= 2: evaluate passes 2..K at one vertex per leaf and
         normal group only (:func:`pass_representatives`) and carry what they remove
@@ -493,7 +508,7 @@ def occlusion_passes(
             inner = np.asarray(inner, dtype=np.float64) / elements.scale
             if inner.shape != (n,) or not np.all(inner >= 0.0):
                 raise ValueError(f"inner must be ({n},) and >= 0")
-        job = _Pass(elements, tree, theta, near, code, reach, inner, pass_reach, gate)
+        job = _Pass(elements, tree, theta, near, code, reach, inner, pass_reach, gate, directional)
         if share:
             _shared_passes(job, occlusion, rep_of, evaluated, passes, sides, damping, progress)
         else:
@@ -524,7 +539,7 @@ def _all_passes(job, occlusion, passes, sides, damping, progress) -> None:
         sums, first = job.sums(weights, progress, cell_weights, binned, cache_mode, occluders)
         _check_result(sums, "unsaturated occlusion sum", lower=0.0, upper=np.inf)
         if binned and k == 0:
-            occluders = occluder_centroids(job.elements, sums, first)
+            occluders = occluder_centroids(job.elements, first)
         occlusion[k] = np.clip(combine_sides(sums[:, :, -1], sides), 0.0, 1.0)
         if binned:
             weights = _weights_from(sums, sides, damping)
@@ -547,7 +562,7 @@ def _shared_passes(job, occlusion, rep_of, evaluated, passes, sides, damping, pr
     occlusion[0] = np.clip(combine_sides(base, sides), 0.0, 1.0)
     # every vertex's own weights: occlusion within a few edge lengths (the first bins)
     # changes too fast to share (a contact vertex's leaf-mates are open)
-    occluders = occluder_centroids(job.elements, first_sums, first)
+    occluders = occluder_centroids(job.elements, first)
     weights = _weights_from(first_sums, sides, damping)
     base_rep = base[rep_of]
     modes = np.zeros(n, dtype=np.uint8)  # later passes: the representatives only
@@ -578,14 +593,15 @@ def combine_sides(sums: FloatArray, sides: str = "max") -> FloatArray:
     return np.maximum(sums[:, 0], sums[:, 1])
 
 
-def occluder_centroids(elements: DiskElements, sums: FloatArray, first: FloatArray) -> FloatArray:
+def occluder_centroids(elements: DiskElements, first: FloatArray) -> FloatArray:
     """(n, 3) centroid of what occludes each vertex, weighted by its terms in the sums:
-    ``p + first / (front + back)`` (normalised coordinates; the vertex itself where
-    nothing occludes it, or where the sums are too small to locate anything)."""
-    total = sums[:, 0, -1] + sums[:, 1, -1]
+    ``p + first[:, :3] / first[:, 3]`` (the moment over the summed terms, no direction
+    excess removed; normalised coordinates; the vertex itself where nothing occludes it,
+    or where the sums are too small to locate anything)."""
+    total = first[:, 3]
     located = total > 1e-9
     out = elements.positions.copy()
-    out[located] = elements.points[located] + first[located] / total[located, None]
+    out[located] = elements.points[located] + first[located, :3] / total[located, None]
     bad = ~np.isfinite(out).all(axis=1)
     out[bad] = elements.positions[bad]
     return np.ascontiguousarray(out)
@@ -632,6 +648,7 @@ def bunnell_ao(
     damping: float = DEFAULT_DAMPING,
     pass_reach: float = DEFAULT_PASS_REACH,
     gate: float = PASS_GATE_WIDTH,
+    directional: bool = True,
     share_passes: bool = True,
     measure: str = "cosine",
     max_distance: float | None = None,
@@ -688,6 +705,9 @@ def bunnell_ao(
         scheme.
     gate : float, optional
         Width of the pass weights' gate (>= 0, 0 = ungated; :func:`occlusion_passes`).
+    directional : bool, optional
+        Per-direction saturation: what direction bins of the receiver's hemisphere hold
+        beyond their measure is dropped (:func:`occlusion_passes`). Cosine measure only.
     share_passes : bool, optional
         Passes 2..K at one vertex per leaf and normal group (:func:`occlusion_passes`);
         only with ``combine="last"`` (the blends use the second-to-last pass at every
@@ -759,6 +779,7 @@ def bunnell_ao(
         damping=damping,
         pass_reach=pass_reach,
         gate=gate,
+        directional=bool(directional),
         share_passes=bool(share_passes) and combine == "last",
         measure=measure,
         max_distance=max_distance,

@@ -82,7 +82,7 @@ def main():
 # Options each --method takes (library keyword names); "seed" is silently unused by bunnell.
 METHOD_OPTIONS = {
     "embree": ("n_rays", "measure", "max_distance", "bias", "seed", "tolerance", "threads"),
-    "bunnell": ("measure", "max_distance", "passes", "theta", "near", "threads"),
+    "bunnell": ("measure", "max_distance", "passes", "theta", "near", "directional", "threads"),
     "hybrid": ("n_rays", "measure", "max_distance", "bias", "seed", "theta", "reach", "threads"),
 }
 FLAGS = {"n_rays": "--rays"}
@@ -160,13 +160,20 @@ def _method_options(method: str, **given) -> dict:
     "--theta",
     type=click.FloatRange(min=0, min_open=True),
     default=None,
-    help="bunnell, hybrid: opening parameter of the disk tree (larger = slower, more exact) [default: 4].",
+    help="bunnell, hybrid: opening parameter of the disk tree (larger = slower, more exact) "
+    "[default: 2 for bunnell, 4 for hybrid].",
 )
 @click.option(
     "--near",
     type=click.FloatRange(min=0),
     default=None,
     help="bunnell: disks closer than sqrt(NEAR * area) become exact polygons (0 = disks only) [default: 4].",
+)
+@click.option(
+    "--directional/--no-directional",
+    default=None,
+    help="bunnell: per-direction saturation, layers stacked in one direction count once "
+    "[default: on; off = the plain sum].",
 )
 @click.option(
     "--reach",
@@ -195,8 +202,8 @@ def _method_options(method: str, **given) -> dict:
 )
 @common_options
 def bake(
-    mesh, output, method, rays, measure, max_distance, bias, tolerance, passes, theta, near, reach, color, up,
-    meters_per_unit, fields, seed, threads, quiet
+    mesh, output, method, rays, measure, max_distance, bias, tolerance, passes, theta, near, directional, reach,
+    color, up, meters_per_unit, fields, seed, threads, quiet
 ):
     """Bake AO of MESH into OUTPUT as the per-vertex attribute `ao`.
 
@@ -218,7 +225,8 @@ def bake(
         fields=fields,
         **_method_options(
             method, n_rays=rays, measure=measure, max_distance=max_distance, bias=bias, seed=seed,
-            tolerance=tolerance, passes=passes, theta=theta, near=near, reach=reach, threads=threads,
+            tolerance=tolerance, passes=passes, theta=theta, near=near, directional=directional,
+            reach=reach, threads=threads,
         ),
     )
     if not quiet:

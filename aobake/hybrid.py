@@ -21,7 +21,7 @@ import numpy as np
 from ._types import AOArray, FloatArray, IndexArray
 from .bunnell import (
     DEFAULT_LEAF_SIZE,
-    DEFAULT_THETA,
+    PLAIN_THETA,
     build_elements,
     build_tree,
     numba_threads,
@@ -75,7 +75,7 @@ def hybrid_ao(
     *,
     n_rays: int = DEFAULT_HYBRID_RAYS,
     reach: float = DEFAULT_REACH,
-    theta: float = DEFAULT_THETA,
+    theta: float = PLAIN_THETA,
     combine: str = "sum",
     far_sides: str = "front",
     measure: str = "cosine",
@@ -163,6 +163,7 @@ def hybrid_ao(
             theta=theta,
             near=0.0,
             sides=far_sides,
+            directional=False,  # measured with plain sums; not tried with saturation
             measure=measure,
             max_distance=max_distance,
             inner=distance,

@@ -22,7 +22,8 @@ from .io_common import atomic_write, pyplot
 #: adaptivity; Bunnell passes and opening parameter (when that method is available).
 EMBREE_RAYS = (4, 16, 64, 256, 1024)
 ADAPTIVE_TOLERANCES = (0.05, 0.02)
-BUNNELL_GRID = ((1, 2.0), (1, 4.0), (1, 8.0), (2, 4.0), (3, 4.0))
+# (passes, theta, per-direction saturation); the last row: plain sums, the old default
+BUNNELL_GRID = ((1, 2.0, True), (1, 4.0, True), (1, 8.0, True), (2, 2.0, True), (1, 4.0, False))
 HYBRID_GRID = ((8, 4.0), (16, 4.0), (32, 8.0))  # (rays, reach in edge lengths)
 FIELD_RESOLUTIONS = (8, 16, 32)
 
@@ -59,8 +60,12 @@ def default_grid(methods: Iterable[str]) -> list[tuple[str, str, dict]]:
         ]
     if "bunnell" in methods:
         grid += [
-            ("bunnell", f"passes={k} theta={th:g}", {"passes": k, "theta": th})
-            for k, th in BUNNELL_GRID
+            (
+                "bunnell",
+                f"passes={k} theta={th:g}" + ("" if d else " plain"),
+                {"passes": k, "theta": th, "directional": d},
+            )
+            for k, th, d in BUNNELL_GRID
         ]
     if "hybrid" in methods:
         grid += [

@@ -11,9 +11,9 @@ Prints Markdown tables measured in one run (not a test; no assertions):
    leaf size, against the exact sum on a random subset of receivers;
 3. scaling: time per pass for n, 4n and 16n vertices (goal about n log n);
 4. the contenders on the big scene timed round-robin (best of 3 rounds), so that load from
-   other processes hits all of them alike;
-5. a second ~700k-vertex scene (the bunny, loop-subdivided, on a floor): the defaults and
-   Embree at 16 and 64 rays, round-robin.
+   other processes hits all of them alike, with their error against the reference;
+5. a second ~700k-vertex scene (the bunny, loop-subdivided, on a floor): the same
+   contenders, round-robin.
 
 References are cached in bench/results/ (Embree 1024 rays on 700k vertices takes minutes).
 
@@ -93,35 +93,42 @@ def run(fn, repeats):
 def variants(n_vertices: int):
     """(label, callable(surface) -> ao, passes) of every row of the accuracy table."""
     big = n_vertices > 50_000
+    plain = dict(directional=False, theta=B.PLAIN_THETA)  # the sums before saturation
     rows = [
-        ("published: disks, front faces (near 0)", dict(near=0.0, sides="front")),
-        ("+ cells (near 4), front faces", dict(sides="front")),
-        ("default: + max(front, back)", dict()),
+        ("published: disks, front faces (near 0), plain sums", dict(near=0.0, sides="front", **plain)),
+        ("+ cells (near 4), front faces", dict(sides="front", **plain)),
+        ("+ max(front, back) (plain sums, theta 4)", dict(plain)),
+        ("default: + per-direction saturation, theta 2", dict()),
     ]
     if not big:
         rows.append(("default, exact sum (no tree)", dict(exact=True)))
     rows += [
-        ("disks only, max(front, back)", dict(near=0.0)),
-        ("near 1", dict(near=1.0)),
-        ("near 16", dict(near=16.0)),
-        ("theta 2", dict(theta=2.0)),
-        ("theta 8", dict(theta=8.0)),
+        ("saturation, theta 3", dict(theta=3.0)),
+        ("saturation, theta 4", dict(theta=4.0)),
+        ("saturation, theta 8", dict(theta=8.0)),
+        ("saturation, disks only (near 0)", dict(near=0.0)),
+        ("saturation, near 1", dict(near=1.0)),
+        ("saturation, near 16", dict(near=16.0)),
+        ("saturation, theta 4, near 16", dict(theta=4.0, near=16.0)),
         ("passes 2", dict(passes=2)),
-        ("passes 2, every vertex (share_passes off)", dict(passes=2, share_passes=False)),
-        ("passes 2, ungated (gate 0)", dict(passes=2, gate=0.0)),
-        ("passes 2, gate 0.03", dict(passes=2, gate=0.03)),
+        ("passes 2, theta 4", dict(passes=2, theta=4.0)),
+        ("passes 2, damping 0.25", dict(passes=2, damping=0.25)),
         ("passes 3", dict(passes=3)),
-        ("passes 4", dict(passes=4)),
-        ("passes 2, pass_reach 0.25", dict(passes=2, pass_reach=0.25)),
-        ("passes 2, pass_reach 1", dict(passes=2, pass_reach=1.0)),
-        ("passes 2, damping 0.5", dict(passes=2, damping=0.5)),
-        ("passes 2, bunnell blend", dict(passes=2, combine="bunnell")),
-        ("passes 2, Bunnell's weights (pass_reach inf, gate 0)", dict(passes=2, pass_reach=np.inf, gate=0.0)),
-        ("passes 3, Bunnell's weights", dict(passes=3, pass_reach=np.inf, gate=0.0)),
-        ("passes 2, Bunnell's weights, bunnell blend", dict(passes=2, pass_reach=np.inf, gate=0.0, combine="bunnell")),
-        ("passes 2, Bunnell's weights, hoberock blend", dict(passes=2, pass_reach=np.inf, gate=0.0, combine="hoberock")),
-        ("passes 3, Bunnell's weights, hoberock blend", dict(passes=3, pass_reach=np.inf, gate=0.0, combine="hoberock")),
-        ("published, passes 2, bunnell blend", dict(near=0.0, sides="front", passes=2, pass_reach=np.inf, gate=0.0, combine="bunnell")),
+        ("plain: passes 2", dict(passes=2, **plain)),
+        ("plain: passes 2, every vertex (share_passes off)", dict(passes=2, share_passes=False, **plain)),
+        ("plain: passes 2, ungated (gate 0)", dict(passes=2, gate=0.0, **plain)),
+        ("plain: passes 3", dict(passes=3, **plain)),
+        ("plain: passes 4", dict(passes=4, **plain)),
+        ("plain: passes 2, pass_reach 0.25", dict(passes=2, pass_reach=0.25, **plain)),
+        ("plain: passes 2, pass_reach 1", dict(passes=2, pass_reach=1.0, **plain)),
+        ("plain: passes 2, damping 0.5", dict(passes=2, damping=0.5, **plain)),
+        ("plain: passes 2, bunnell blend", dict(passes=2, combine="bunnell", **plain)),
+        ("plain: passes 2, Bunnell's weights (pass_reach inf, gate 0)", dict(passes=2, pass_reach=np.inf, gate=0.0, **plain)),
+        ("plain: passes 3, Bunnell's weights", dict(passes=3, pass_reach=np.inf, gate=0.0, **plain)),
+        ("plain: passes 2, Bunnell's weights, bunnell blend", dict(passes=2, pass_reach=np.inf, gate=0.0, combine="bunnell", **plain)),
+        ("plain: passes 2, Bunnell's weights, hoberock blend", dict(passes=2, pass_reach=np.inf, gate=0.0, combine="hoberock", **plain)),
+        ("plain: passes 3, Bunnell's weights, hoberock blend", dict(passes=3, pass_reach=np.inf, gate=0.0, combine="hoberock", **plain)),
+        ("published, passes 2, bunnell blend", dict(near=0.0, sides="front", passes=2, pass_reach=np.inf, gate=0.0, combine="bunnell", **plain)),
     ]
     out = [(label, (lambda s, kw=kw: B.bunnell_ao(s, **kw)), kw.get("passes", 1)) for label, kw in rows]
     out += [
@@ -169,15 +176,16 @@ def section_accuracy(all_scenes, repeats):
     return results
 
 
-def exact_subset(elements, subset, near):
+def exact_subset(elements, subset, near, directional=True):
     """Exact pass-1 occlusion (max rule) at ``subset`` receivers (brute force)."""
-    job = B._Pass(elements, None, B.DEFAULT_THETA, near, K.MEASURE_COSINE, np.inf)
+    job = B._Pass(elements, None, B.DEFAULT_THETA, near, K.MEASURE_COSINE, np.inf,
+                  directional=directional)
     out = np.zeros((elements.n_vertices, 2, K.N_BINS))
     ones = np.ones(elements.n_vertices)
     disks = (elements.positions, elements.normals, elements.areas,
              np.ones((elements.n_vertices, K.N_LEVELS)), elements.positions)
     cells = (elements.corner_start, elements.corners, ones)
-    first = np.zeros((elements.n_vertices, 3))
+    first = np.zeros((elements.n_vertices, 4))
     K.brute_force_pass(disks, cells, elements.emitter_index, job.receivers, subset, job.options,
                        out, first)
     return np.clip(out[:, :, -1].max(axis=1)[subset], 0.0, 1.0)
@@ -193,26 +201,30 @@ def section_speed(surface, desc, repeats, n_check):
     print(f"build_elements: {t_el:.2f} s (CPU {c_el:.2f} s); build_tree {t_build:.2f} s, "
           f"refit_tree (animation: same mesh, new positions) {t_refit:.2f} s\n")
     subset = np.sort(np.random.default_rng(0).choice(surface.n_vertices, n_check, replace=False))
-    exact = {nu: exact_subset(elements, subset, nu) for nu in (0.0, 4.0)}
+    exact = {(nu, d): exact_subset(elements, subset, nu, d) for nu in (0.0, 4.0) for d in (True, False)}
     rows = []
     for leaf in (16, 32, 64):
         tree, t_tree, c_tree = run(lambda leaf=leaf: B.build_tree(elements, leaf_size=leaf), repeats)
-        for theta in (2.0, 4.0, 8.0):
-            for nu in (0.0, 4.0):
-                if leaf != B.DEFAULT_LEAF_SIZE and theta != B.DEFAULT_THETA:
-                    continue
-                occ, t1, c1 = run(
-                    lambda tree=tree, theta=theta, nu=nu: B.occlusion_passes(
-                        elements, tree, theta=theta, near=nu
-                    )[0],
-                    repeats,
-                )
-                e = occ[subset] - exact[nu]
-                rows.append([leaf, f"{t_tree:.2f}", theta, nu, f"{t1:.2f}", f"{c1:.2f}",
-                             f"{np.sqrt(np.mean(e**2)):.4f}", f"{np.quantile(np.abs(e), 0.99):.4f}"])
-                print(f"  leaf {leaf} theta {theta} near {nu}: {t1:.2f}s", file=sys.stderr, flush=True)
+        for directional in (True, False):
+            for theta in (2.0, 4.0, 8.0):
+                for nu in (0.0, 4.0):
+                    if leaf != B.DEFAULT_LEAF_SIZE and (theta != B.DEFAULT_THETA or not directional):
+                        continue
+                    occ, t1, c1 = run(
+                        lambda tree=tree, theta=theta, nu=nu, d=directional: B.occlusion_passes(
+                            elements, tree, theta=theta, near=nu, directional=d
+                        )[0],
+                        repeats,
+                    )
+                    e = occ[subset] - exact[nu, directional]
+                    rows.append([leaf, f"{t_tree:.2f}", "yes" if directional else "no", theta, nu,
+                                 f"{t1:.2f}", f"{c1:.2f}", f"{np.sqrt(np.mean(e**2)):.4f}",
+                                 f"{np.quantile(np.abs(e), 0.99):.4f}"])
+                    print(f"  leaf {leaf} dir {directional} theta {theta} near {nu}: {t1:.2f}s",
+                          file=sys.stderr, flush=True)
     print(common.markdown_table(
-        ["leaf", "tree s", "theta", "near", "pass s", "pass CPU s", f"RMSE vs exact ({n_check})", "p99"],
+        ["leaf", "tree s", "saturation", "theta", "near", "pass s", "pass CPU s",
+         f"RMSE vs exact ({n_check})", "p99"],
         [[str(c) for c in r] for r in rows],
     ))
     for passes in (1, 2):
@@ -242,18 +254,38 @@ def section_scaling(threads, repeats):
     ))
 
 
-def section_timing(surface):
-    print(f"\n## 4. Round-robin timing on {surface.n_vertices} vertices (best of 3 rounds)\n")
-    fns = {
-        "bunnell published (near 0, front faces)": lambda: B.bunnell_ao(surface, near=0.0, sides="front"),
-        "bunnell default": lambda: B.bunnell_ao(surface),
-        "bunnell --passes 2": lambda: B.bunnell_ao(surface, passes=2),
+def contenders(surface):
+    """The big-scene round-robin: the defaults, the plain sums, Embree at 16 and 64 rays."""
+    return {
+        "bunnell published (near 0, front faces, plain sums)": lambda: B.bunnell_ao(
+            surface, near=0.0, sides="front", directional=False, theta=B.PLAIN_THETA),
+        "bunnell --no-directional --theta 4 (plain sums)": lambda: B.bunnell_ao(
+            surface, directional=False, theta=B.PLAIN_THETA),
+        "bunnell --no-directional --theta 4 --passes 2": lambda: B.bunnell_ao(
+            surface, directional=False, theta=B.PLAIN_THETA, passes=2),
+        "bunnell default (saturation, theta 2)": lambda: B.bunnell_ao(surface),
+        "bunnell --theta 4": lambda: B.bunnell_ao(surface, theta=4.0),
         "hybrid (16 rays, reach 4)": lambda: hybrid_ao(surface).ao,
         "embree 16 rays": lambda: embree_ao(surface, n_rays=16, seed=1).ao,
+        "embree 64 rays": lambda: embree_ao(surface, n_rays=64, seed=1).ao,
     }
-    res = common.interleaved(fns, repeats=3)
-    rows = [[k, f"{v.seconds:.2f}", f"{v.cpu:.2f}", f"{v.cores:.2f}"] for k, v in res.items()]
-    print(common.markdown_table(["method", "wall s", "CPU s", "cores busy"], rows))
+
+
+def round_robin(surface, ref):
+    """Time the contenders round-robin (best of 3 rounds) and score them against ref."""
+    res = common.interleaved(contenders(surface), repeats=3)
+    rows = []
+    for k, v in res.items():
+        rmse, p99, bias = scores(v.result, ref, surface)
+        rows.append([k, f"{rmse:.4f}", f"{p99:.3f}", f"{bias:+.4f}", f"{v.seconds:.2f}",
+                     f"{v.cpu:.2f}", f"{v.cores:.2f}"])
+    print(common.markdown_table(["method", "RMSE", "p99", "bias", "wall s", "CPU s", "cores busy"], rows))
+
+
+def section_timing(surface):
+    print(f"\n## 4. Round-robin on {surface.n_vertices} vertices (best of 3 rounds; RMSE / p99 / "
+          f"bias against Embree {REF_RAYS} rays)\n")
+    round_robin(surface, reference("spheres_on_ground", surface))
 
 
 def section_bunny(n_vertices):
@@ -261,19 +293,7 @@ def section_bunny(n_vertices):
     surface, desc = common.bunny_on_ground(n_vertices)
     print(f"\n## 5. Second big scene: {desc}, {surface.n_vertices} vertices "
           f"(round-robin, best of 3; RMSE / p99 / bias against Embree {REF_RAYS} rays)\n")
-    ref = reference("bunny_on_ground", surface)
-    fns = {
-        "bunnell default": lambda: B.bunnell_ao(surface),
-        "bunnell --passes 2": lambda: B.bunnell_ao(surface, passes=2),
-        "embree 16 rays": lambda: embree_ao(surface, n_rays=16, seed=1).ao,
-        "embree 64 rays": lambda: embree_ao(surface, n_rays=64, seed=1).ao,
-    }
-    res = common.interleaved(fns, repeats=3)
-    rows = []
-    for k, v in res.items():
-        rmse, p99, bias = scores(v.result, ref, surface)
-        rows.append([k, f"{rmse:.4f}", f"{p99:.3f}", f"{bias:+.4f}", f"{v.seconds:.2f}", f"{v.cpu:.2f}"])
-    print(common.markdown_table(["method", "RMSE", "p99", "bias", "wall s", "CPU s"], rows))
+    round_robin(surface, reference("bunny_on_ground", surface))
 
 
 def main():

@@ -118,7 +118,7 @@ def naive_cell(positions, faces, j, point, normal, measure="cosine"):
 def naive_sums(
     positions, normals, areas, faces, points, weights, measure="cosine", max_distance=None,
     near=0.0, cell_weights=None, radii=None, reach=np.inf, occluders=None, gate=0.0,
-    first=None,
+    first=None, sectors=0, plain=None,
 ):
     """Unsaturated (front, back) sums at every vertex, one receiver at a time.
 
@@ -139,6 +139,13 @@ def naive_sums(
     the fraction ``clamp(n_i.(occluders[j] - p_i) / (gate r), 0, 1)`` of ``1 - w``
     (1 for a receiver without a normal). ``first`` (n, 3): filled with
     ``sum term (c_j - p_i)`` over every disk and cell term (weighted).
+
+    ``sectors`` S > 0 (cosine, receivers with a normal): every counted disk term but
+    the wide ones (``A >= r^2``) is spread over 2 S direction bins of its side (S azimuth sectors of the receiver's
+    tangent frame, linearly interpolated, times a near-normal / near-horizon split), and
+    each side's total (the last bin with ``radii``) loses ``sum max(bin - 1 / 2S, 0)``;
+    other bins and ``first`` stay unsaturated. ``plain`` (n, 2): filled with the totals
+    before that subtraction.
     """
     positions = np.asarray(positions, dtype=np.float64)
     cell_weights = weights if cell_weights is None else cell_weights
@@ -155,6 +162,10 @@ def naive_sums(
     for i in range(n):
         p = points[i]
         has_normal = np.linalg.norm(normals[i]) > 0
+        saturate = sectors > 0 and has_normal and measure == "cosine"
+        if saturate:
+            u, v = tangent_frame(normals[i])
+            directions = np.zeros((2, 2 * sectors))  # (side, sector + sectors * horizon)
         d32 = p32 - p.astype(np.float32)
         r2_32 = (d32 * d32).sum(axis=1, dtype=np.float32)
         for j in np.flatnonzero(casts):
@@ -191,12 +202,60 @@ def naive_sums(
             out[i][0 if cos_e > 0 else 1, reached] += w * term
             if first is not None:
                 first[i] += w * term * d
+            # wide disks (A >= r^2, aobake.constants.DIRECTION_WIDE) are not binned
+            if saturate and (radii is None or r < radii[-1]) and areas[j] < r2:
+                local = (u @ d, v @ d, normals[i] @ d)
+                spread_direction(directions[0 if cos_e > 0 else 1], w * term, local, r2, sectors)
+        if plain is not None:
+            plain[i] = out[i, :, -1]
+        if saturate:
+            excess = np.maximum(directions - 1.0 / (2 * sectors), 0.0).sum(axis=1)
+            out[i, :, -1] -= excess
     return out[:, :, 0] if radii is None else out
+
+
+def tangent_frame(normal):
+    """(u, v) completing the unit ``normal`` to an orthonormal frame (Duff et al. 2017)."""
+    nx, ny, nz = normal
+    s = 1.0 if nz >= 0 else -1.0
+    a = -1.0 / (s + nz)
+    b = nx * ny * a
+    u = np.array([1.0 + s * nx * nx * a, s * b, -s * nx])
+    v = np.array([b, s + ny * ny * a, -ny])
+    return u, v
+
+
+def spread_direction(bins, value, local, r2, sectors):
+    """Add ``value`` from direction ``local`` = (x, y, z) (tangent frame, r2 = |local|^2) to the
+    2 S ``bins`` of one side: the pole share ``clip(1 - 16 sin^2, 0, 1)`` evenly over the
+    sectors, the rest linear between the two nearest of S azimuth sectors (a pseudo-angle
+    in [0, 4)); bins S.. getting the horizon fraction ``clip(1.5 - 2 z^2 / r2, 0, 1)``,
+    bins 0.. the rest."""
+    x, y, z = local
+    fe = np.clip(1.5 - 2.0 * z * z / r2, 0.0, 1.0)
+    pole = np.clip(1.0 - 16.0 * (x * x + y * y) / r2, 0.0, 1.0)
+    for k in range(sectors):
+        bins[k] += value * pole / sectors * (1 - fe)
+        bins[sectors + k] += value * pole / sectors * fe
+    value = value * (1.0 - pole)
+    t = 0.0 if abs(x) + abs(y) == 0 else abs(y) / (abs(x) + abs(y))
+    if y >= 0:
+        q = t if x >= 0 else 2.0 - t
+    else:
+        q = 2.0 + t if x < 0 else 4.0 - t
+    fa = q * sectors / 4.0 - 0.5
+    k0 = int(np.floor(fa))
+    wgt = fa - k0
+    i0, i1 = k0 % sectors, (k0 + 1) % sectors
+    bins[i0] += value * (1 - wgt) * (1 - fe)
+    bins[i1] += value * wgt * (1 - fe)
+    bins[sectors + i0] += value * (1 - wgt) * fe
+    bins[sectors + i1] += value * wgt * fe
 
 
 def naive_bunnell_ao(
     surface: Surface, passes=2, measure="cosine", max_distance=None, combine="last", near=0.0,
-    sides="max", damping=1.0, pass_reach=0.5, gate=0.1,
+    sides="max", damping=1.0, pass_reach=0.5, gate=0.1, sectors=0,
 ):
     """Exact (no hierarchy) multi-pass disk AO, straight from the definitions.
 
@@ -206,7 +265,8 @@ def naive_bunnell_ao(
     emitters closer than the largest of PASS_RADII that is <= pass_reach r (1 when none
     is); cell weights 1. With ``gate`` > 0 that occlusion only counts in the fraction
     ``clamp(n_i.(o_j - p_i) / (gate r), 0, 1)``, o_j the centroid of pass 1's terms at j
-    (``p_j + sum term d / sum term``).
+    (``p_j + sum term d / sum term``). ``sectors`` > 0 saturates the sums per direction
+    (:func:`naive_sums`); the centroids use the unsaturated totals.
 
     Returns
     -------
@@ -224,12 +284,14 @@ def naive_bunnell_ao(
     occluders = None
     for k in range(passes):
         first = np.zeros((len(positions), 3))
+        plain = np.zeros((len(positions), 2))
         sums = naive_sums(
             positions, surface.normals, areas, surface.faces, points, weights, measure, reach,
             near, np.ones(len(positions)), radii, pass_reach, occluders, gate, first,
+            sectors, plain,
         )
         if k == 0:
-            total = sums[:, 0, -1] + sums[:, 1, -1]
+            total = plain[:, 0] + plain[:, 1]
             occluders = positions.copy()
             ok = total > 1e-9
             occluders[ok] = points[ok] + first[ok] / total[ok, None]

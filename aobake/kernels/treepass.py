@@ -20,10 +20,16 @@ from .bunnell import (
     NO_NORMAL_COSINE,
     NO_NORMAL_UNIFORM,
     PI32,
+    SECTORS,
     ZERO32,
+    add_directions,
+    direction_excess,
     disk_pair32,
     is_near,
+    is_wide,
     level_of,
+    sector_coords,
+    tangent_frame,
 )
 from .hierarchy import (
     E_AREA,
@@ -487,6 +493,141 @@ def near_disk_sums(near, n_near, px, py, pz, nx, ny, nz, has_normal, measure, ma
 
 
 @njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+def tents(dx, dy, dz, d2, frame, nx, ny, nz):
+    """``(up, low, (a_0 .. a_7))``: the band shares and every sector's share of direction
+    d (``bunnell.sector_coords``: the pole share evenly, the rest by ``bunnell.tent``;
+    most are 0 away from the normal), as scalars."""
+    up, low, q, pole = sector_coords(dx, dy, dz, d2, frame, nx, ny, nz)
+    one = np.float32(1.0)
+    e = pole * np.float32(1.0 / SECTORS)
+    s = one - pole
+    # bunnell.tent spelled out: only sectors 0 and 7 wrap round (q in [0, 8))
+    a = (
+        s * max(one - min(abs(q - np.float32(0.5)), np.float32(8.5) - q), ZERO32) + e,
+        s * max(one - abs(q - np.float32(1.5)), ZERO32) + e,
+        s * max(one - abs(q - np.float32(2.5)), ZERO32) + e,
+        s * max(one - abs(q - np.float32(3.5)), ZERO32) + e,
+        s * max(one - abs(q - np.float32(4.5)), ZERO32) + e,
+        s * max(one - abs(q - np.float32(5.5)), ZERO32) + e,
+        s * max(one - abs(q - np.float32(6.5)), ZERO32) + e,
+        s * max(one - min(abs(q - np.float32(7.5)), q + np.float32(0.5)), ZERO32) + e,
+    )
+    return up, low, a
+
+
+@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+def dir_add(acc, v, up, low, a):
+    """One side's term v added to its 16 direction accumulators (upper band sectors
+    0..7, then the lower band), spread as ``bunnell.add_directions`` spreads it; a tuple
+    of scalars, so the callers' loops vectorise."""
+    u = v * up
+    lo = v * low
+    return (
+        acc[0] + u * a[0], acc[1] + u * a[1], acc[2] + u * a[2], acc[3] + u * a[3], acc[4] + u * a[4], acc[5] + u * a[5], acc[6] + u * a[6], acc[7] + u * a[7],
+        acc[8] + lo * a[0], acc[9] + lo * a[1], acc[10] + lo * a[2], acc[11] + lo * a[3], acc[12] + lo * a[4], acc[13] + lo * a[5], acc[14] + lo * a[6], acc[15] + lo * a[7],
+    )
+
+
+@njit(cache=True, fastmath=FASTMATH, error_model="numpy")
+def direction_sums(near, n_near, far, n_far, px, py, pz, nx, ny, nz, frame, max_d2, min_d2, wr2,
+                   leveled, gate, dirs):
+    """The terms of :func:`near_disk_sums` and :func:`far_sums` for a receiver with a
+    normal (cosine measure), by direction, into ``dirs`` (2, 17) (:func:`dir_add`, far
+    nodes by their centre; wide ones, ``bunnell.is_wide``, whole into column 16). The accumulators are scalars and each case has a loop of its
+    own, so they vectorise."""
+    t0, t1, t2, t3, t4, t5 = wr2[0], wr2[1], wr2[2], wr2[3], wr2[4], wr2[5]
+    z = ZERO32
+    sf = (z, z, z, z, z, z, z, z, z, z, z, z, z, z, z, z)
+    sb = sf
+    wf = z  # wide terms (bunnell.is_wide): not binned
+    wb = z
+    if not leveled:
+        for j in range(n_near):
+            dx = near[S_X, j] - px
+            dy = near[S_Y, j] - py
+            dz = near[S_Z, j] - pz
+            r2 = dx * dx + dy * dy + dz * dz
+            f, b = cosine_pair(near, j, dx, dy, dz, r2, near[S_WA, j], nx, ny, nz, max_d2, min_d2)
+            wide = is_wide(near[S_A, j], r2)
+            wf += f if wide else z
+            wb += b if wide else z
+            f = z if wide else f
+            b = z if wide else b
+            up, low, a = tents(dx, dy, dz, r2, frame, nx, ny, nz)
+            sf = dir_add(sf, f, up, low, a)
+            sb = dir_add(sb, b, up, low, a)
+    elif gate > ZERO32:
+        for j in range(n_near):
+            dx = near[S_X, j] - px
+            dy = near[S_Y, j] - py
+            dz = near[S_Z, j] - pz
+            r2 = dx * dx + dy * dy + dz * dz
+            wa = level_weight(near, j, r2, t0, t1, t2, t3, t4, t5)
+            wa = gated_weight(near, j, r2, wa, px, py, pz, nx, ny, nz, True, gate)
+            f, b = cosine_pair(near, j, dx, dy, dz, r2, wa, nx, ny, nz, max_d2, min_d2)
+            wide = is_wide(near[S_A, j], r2)
+            wf += f if wide else z
+            wb += b if wide else z
+            f = z if wide else f
+            b = z if wide else b
+            up, low, a = tents(dx, dy, dz, r2, frame, nx, ny, nz)
+            sf = dir_add(sf, f, up, low, a)
+            sb = dir_add(sb, b, up, low, a)
+    else:
+        for j in range(n_near):
+            dx = near[S_X, j] - px
+            dy = near[S_Y, j] - py
+            dz = near[S_Z, j] - pz
+            r2 = dx * dx + dy * dy + dz * dz
+            wa = level_weight(near, j, r2, t0, t1, t2, t3, t4, t5)
+            f, b = cosine_pair(near, j, dx, dy, dz, r2, wa, nx, ny, nz, max_d2, min_d2)
+            wide = is_wide(near[S_A, j], r2)
+            wf += f if wide else z
+            wb += b if wide else z
+            f = z if wide else f
+            b = z if wide else b
+            up, low, a = tents(dx, dy, dz, r2, frame, nx, ny, nz)
+            sf = dir_add(sf, f, up, low, a)
+            sb = dir_add(sb, b, up, low, a)
+    if gate > ZERO32:
+        for j in range(n_far):
+            dx = far[F_X, j] - px
+            dy = far[F_Y, j] - py
+            dz = far[F_Z, j] - pz
+            d2 = dx * dx + dy * dy + dz * dz
+            f, b = far_pair_gated(far, j, dx, dy, dz, d2, px, py, pz, nx, ny, nz, True,
+                                  MEASURE_COSINE, gate)
+            wide = is_wide(far[F_WA, j], d2)
+            wf += f if wide else z
+            wb += b if wide else z
+            f = z if wide else f
+            b = z if wide else b
+            up, low, a = tents(dx, dy, dz, d2, frame, nx, ny, nz)
+            sf = dir_add(sf, f, up, low, a)
+            sb = dir_add(sb, b, up, low, a)
+    else:
+        for j in range(n_far):
+            dx = far[F_X, j] - px
+            dy = far[F_Y, j] - py
+            dz = far[F_Z, j] - pz
+            d2 = dx * dx + dy * dy + dz * dz
+            f, b = far_pair(far, j, dx, dy, dz, d2, nx, ny, nz, True, MEASURE_COSINE)
+            wide = is_wide(far[F_WA, j], d2)
+            wf += f if wide else z
+            wb += b if wide else z
+            f = z if wide else f
+            b = z if wide else b
+            up, low, a = tents(dx, dy, dz, d2, frame, nx, ny, nz)
+            sf = dir_add(sf, f, up, low, a)
+            sb = dir_add(sb, b, up, low, a)
+    for k in range(2 * SECTORS):
+        dirs[0, k] = sf[k]
+        dirs[1, k] = sb[k]
+    dirs[0, 2 * SECTORS] = wf
+    dirs[1, 2 * SECTORS] = wb
+
+
+@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
 def bin_add(acc, f, b, d2, dx, dy, dz, r0, r1, r2, r3, r4):
     """One term added to the binned accumulators ``acc`` (15 float32: front per bin,
     back per bin, then the first moment): bin k takes it when ``d2 < r_k`` (the last bin
@@ -616,20 +757,20 @@ def hierarchy_pass(tree, emitters, receivers, near_field, buckets, span, options
     span : tuple
         ``(b0, b1)`` buckets to compute.
     options : tuple
-        ``(measure, max_distance, near, binned, bin_r2, weight_r2, leveled, gate)`` as
-        in ``bunnell.brute_force_pass``; ``leveled``: the weights differ between levels
-        (the gate applies only then).
+        ``(measure, max_distance, near, binned, bin_r2, weight_r2, leveled, gate,
+        directional)`` as in ``bunnell.brute_force_pass``; ``leveled``: the weights differ
+        between levels (the gate applies only then).
     out : (n, 2, N_BINS) float64
-        Unsaturated (front, back) sums, cumulative by distance bin when ``binned``
-        (else only the last bin, the total, is written); each receiver writes its own
-        row.
-    first : (n, 3) float64
+        (front, back) sums, cumulative by distance bin when ``binned`` (else only the
+        last bin, the total, is written), as in ``bunnell.brute_force_pass`` (the total
+        less the direction excess); each receiver writes its own row.
+    first : (n, 4) float64
         When ``binned`` and ``cache_mode != 2``: as in ``bunnell.brute_force_pass``.
     """
     positions, cell_weights, corner_start, corners, cache, cache_mode = near_field
     points, normals, inner, modes = receivers
     order, bucket_start, bounds, near_buf, near_idx, far_buf = buckets
-    measure, max_distance, near, binned, bin_r2, weight_r2, leveled, gate = options
+    measure, max_distance, near, binned, bin_r2, weight_r2, leveled, gate, directional = options
     gate_ = np.float32(gate) if leveled else ZERO32
     max_d2 = np.float32(min(max_distance * max_distance, 3.0e38))
     # without levels only level 0 is gathered: thresholds no distance reaches
@@ -645,6 +786,7 @@ def hierarchy_pass(tree, emitters, receivers, near_field, buckets, span, options
         quad = np.empty((4, 3))
         acc = np.zeros((2, last + 1))
         fst = np.zeros(3)
+        dirs = np.zeros((2, 2 * SECTORS + 1))
         n_near, n_cand, n_far = gather(
             tree, emitters, bounds[bk], (max_distance, near, weight_r2, leveled, gate), nb, ni, fb
         )
@@ -669,7 +811,17 @@ def hierarchy_pass(tree, emitters, receivers, near_field, buckets, span, options
             nz32 = np.float32(nz)
             acc[:] = 0.0
             fst[:] = 0.0
-            if binned_i:
+            binning = directional and has_normal and measure == MEASURE_COSINE
+            fr = tangent_frame(nx, ny, nz) if has_normal else (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+            frame = (np.float32(fr[0]), np.float32(fr[1]), np.float32(fr[2]), np.float32(fr[3]),
+                     np.float32(fr[4]), np.float32(fr[5]))
+            if binning:
+                direction_sums(nb, n_near, fb, n_far, px32, py32, pz32, nx32, ny32, nz32, frame,
+                               max_d2, np.float32(min_d2), wr2, leveled, gate_, dirs)
+            if binning and not binned_i:
+                acc[0, last] = dirs[0].sum()  # the bins and the wide terms
+                acc[1, last] = dirs[1].sum()
+            elif binned_i:
                 binned_sums(nb, n_near, fb, n_far, px32, py32, pz32, nx32, ny32, nz32, has_normal,
                             measure, max_d2, np.float32(min_d2), wr2, br2, leveled, gate_, acc,
                             fst)
@@ -707,6 +859,9 @@ def hierarchy_pass(tree, emitters, receivers, near_field, buckets, span, options
                     df, db = near_pair(nb, t, ex, ey, ez, r2, wr2, px32, py32, pz32, nx32, ny32,
                                        nz32, has_normal, measure, gate_, max_d2,
                                        np.float32(min_d2))
+                    if binning:  # and its share of the direction bins
+                        add_directions(dirs, -df, -db, nb[S_A, t], ex, ey, ez, r2, frame, nx32, ny32,
+                                       nz32)
                     if binned_i:  # the disk's share of the first moment goes with it
                         both = np.float64(df) + np.float64(db)
                         fst[0] -= both * ex
@@ -731,11 +886,15 @@ def hierarchy_pass(tree, emitters, receivers, near_field, buckets, span, options
                     for k in range(last + 1) if binned_i else range(last, last + 1):
                         acc[0, k] += cache[i, 0, k]
                         acc[1, k] += cache[i, 1, k]
-            for k in range(last + 1):
-                # the swap can leave -1 ulp where the sum is 0
-                out[i, 0, k] = max(acc[0, k], 0.0)
-                out[i, 1, k] = max(acc[1, k], 0.0)
             if binned_i:
                 first[i, 0] = fst[0]
                 first[i, 1] = fst[1]
                 first[i, 2] = fst[2]
+                first[i, 3] = max(acc[0, last], 0.0) + max(acc[1, last], 0.0)
+            if binning:
+                acc[0, last] -= direction_excess(dirs, 0)
+                acc[1, last] -= direction_excess(dirs, 1)
+            for k in range(last + 1):
+                # the swap can leave -1 ulp where the sum is 0
+                out[i, 0, k] = max(acc[0, k], 0.0)
+                out[i, 1, k] = max(acc[1, k], 0.0)
