@@ -1017,7 +1017,8 @@ def test_pipeline_bake_bunnell_is_the_api():
                                   B.bunnell_ao(s, passes=2, theta=8.0))
 
 
-def test_cli_bunnell_writes_what_the_api_computes(scene_ply, tmp_path):
+@pytest.mark.parametrize("flag", [None, "--no-directional", "--directional"])
+def test_cli_bunnell_writes_what_the_api_computes(scene_ply, tmp_path, flag):
     from click.testing import CliRunner
 
     from aobake.cli import main
@@ -1026,10 +1027,11 @@ def test_cli_bunnell_writes_what_the_api_computes(scene_ply, tmp_path):
 
     out = tmp_path / "out.ply"
     args = ["bake", str(scene_ply), "-o", str(out), "--method", "bunnell", "--passes", "2",
-            "--theta", "8", "--near", "2"]
+            "--theta", "8", "--near", "2"] + ([flag] if flag else [])
     result = CliRunner().invoke(main, args)
     assert result.exit_code == 0, result.output
-    expected = B.bunnell_ao(load_mesh(scene_ply), passes=2, theta=8.0, near=2.0)
+    expected = B.bunnell_ao(load_mesh(scene_ply), passes=2, theta=8.0, near=2.0,
+                            directional=flag != "--no-directional")
     np.testing.assert_allclose(read_bake(out), expected, rtol=0, atol=1e-7)  # float32 in PLY
     assert "bunnell in" in result.stderr and "rays" not in result.stderr
 

@@ -777,6 +777,7 @@ def hierarchy_pass(tree, emitters, receivers, near_field, buckets, span, options
     wr2 = weight_r2.astype(np.float32) if leveled else np.full(weight_r2.shape[0], np.inf, np.float32)
     br2 = bin_r2.astype(np.float32)
     last = bin_r2.shape[0] - 1
+    cap = 0.5 / SECTORS  # one direction bin's measure
     b0, b1 = span
     for bk in prange(b0, b1):
         tid = numba.get_thread_id()
@@ -811,17 +812,7 @@ def hierarchy_pass(tree, emitters, receivers, near_field, buckets, span, options
             nz32 = np.float32(nz)
             acc[:] = 0.0
             fst[:] = 0.0
-            binning = directional and has_normal and measure == MEASURE_COSINE
-            fr = tangent_frame(nx, ny, nz) if has_normal else (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
-            frame = (np.float32(fr[0]), np.float32(fr[1]), np.float32(fr[2]), np.float32(fr[3]),
-                     np.float32(fr[4]), np.float32(fr[5]))
-            if binning:
-                direction_sums(nb, n_near, fb, n_far, px32, py32, pz32, nx32, ny32, nz32, frame,
-                               max_d2, np.float32(min_d2), wr2, leveled, gate_, dirs)
-            if binning and not binned_i:
-                acc[0, last] = dirs[0].sum()  # the bins and the wide terms
-                acc[1, last] = dirs[1].sum()
-            elif binned_i:
+            if binned_i:
                 binned_sums(nb, n_near, fb, n_far, px32, py32, pz32, nx32, ny32, nz32, has_normal,
                             measure, max_d2, np.float32(min_d2), wr2, br2, leveled, gate_, acc,
                             fst)
@@ -834,6 +825,19 @@ def hierarchy_pass(tree, emitters, receivers, near_field, buckets, span, options
                 )
                 acc[0, last] = np.float64(f1) + np.float64(f2)
                 acc[1, last] = np.float64(b1_) + np.float64(b2)
+            # per-direction saturation: the binned terms are a subset of these (non-negative)
+            # terms, so where neither side's sum reaches one bin's measure no bin can
+            # overflow and the (costlier) binned loops are skipped: exact
+            binning = (
+                directional and has_normal and measure == MEASURE_COSINE
+                and max(acc[0, last], acc[1, last]) > cap
+            )
+            fr = tangent_frame(nx, ny, nz) if has_normal else (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+            frame = (np.float32(fr[0]), np.float32(fr[1]), np.float32(fr[2]), np.float32(fr[3]),
+                     np.float32(fr[4]), np.float32(fr[5]))
+            if binning:
+                direction_sums(nb, n_near, fb, n_far, px32, py32, pz32, nx32, ny32, nz32, frame,
+                               max_d2, np.float32(min_d2), wr2, leveled, gate_, dirs)
             if has_normal:
                 # near-field emitters: swap the disk (as summed above) for the cell
                 for u in range(n_cand):
