@@ -528,6 +528,21 @@ def dir_add(acc, v, up, low, a):
     )
 
 
+@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+def dir_term(sf, sb, wf, wb, f, b, area, dx, dy, dz, d2, frame, nx, ny, nz):
+    """One (front, back) term of an emitter of area A in direction d added to the
+    direction accumulators ``sf``, ``sb`` (:func:`dir_add`), or whole to ``wf``, ``wb``
+    when it is too wide to bin (``bunnell.is_wide``); selects only."""
+    z = ZERO32
+    wide = is_wide(area, d2)
+    wf += f if wide else z
+    wb += b if wide else z
+    f = z if wide else f
+    b = z if wide else b
+    up, low, a = tents(dx, dy, dz, d2, frame, nx, ny, nz)
+    return dir_add(sf, f, up, low, a), dir_add(sb, b, up, low, a), wf, wb
+
+
 @njit(cache=True, fastmath=FASTMATH, error_model="numpy")
 def direction_sums(near, n_near, far, n_far, px, py, pz, nx, ny, nz, frame, max_d2, min_d2, wr2,
                    leveled, gate, dirs):
@@ -548,14 +563,8 @@ def direction_sums(near, n_near, far, n_far, px, py, pz, nx, ny, nz, frame, max_
             dz = near[S_Z, j] - pz
             r2 = dx * dx + dy * dy + dz * dz
             f, b = cosine_pair(near, j, dx, dy, dz, r2, near[S_WA, j], nx, ny, nz, max_d2, min_d2)
-            wide = is_wide(near[S_A, j], r2)
-            wf += f if wide else z
-            wb += b if wide else z
-            f = z if wide else f
-            b = z if wide else b
-            up, low, a = tents(dx, dy, dz, r2, frame, nx, ny, nz)
-            sf = dir_add(sf, f, up, low, a)
-            sb = dir_add(sb, b, up, low, a)
+            sf, sb, wf, wb = dir_term(sf, sb, wf, wb, f, b, near[S_A, j], dx, dy, dz, r2, frame,
+                                      nx, ny, nz)
     elif gate > ZERO32:
         for j in range(n_near):
             dx = near[S_X, j] - px
@@ -565,14 +574,8 @@ def direction_sums(near, n_near, far, n_far, px, py, pz, nx, ny, nz, frame, max_
             wa = level_weight(near, j, r2, t0, t1, t2, t3, t4, t5)
             wa = gated_weight(near, j, r2, wa, px, py, pz, nx, ny, nz, True, gate)
             f, b = cosine_pair(near, j, dx, dy, dz, r2, wa, nx, ny, nz, max_d2, min_d2)
-            wide = is_wide(near[S_A, j], r2)
-            wf += f if wide else z
-            wb += b if wide else z
-            f = z if wide else f
-            b = z if wide else b
-            up, low, a = tents(dx, dy, dz, r2, frame, nx, ny, nz)
-            sf = dir_add(sf, f, up, low, a)
-            sb = dir_add(sb, b, up, low, a)
+            sf, sb, wf, wb = dir_term(sf, sb, wf, wb, f, b, near[S_A, j], dx, dy, dz, r2, frame,
+                                      nx, ny, nz)
     else:
         for j in range(n_near):
             dx = near[S_X, j] - px
@@ -581,14 +584,8 @@ def direction_sums(near, n_near, far, n_far, px, py, pz, nx, ny, nz, frame, max_
             r2 = dx * dx + dy * dy + dz * dz
             wa = level_weight(near, j, r2, t0, t1, t2, t3, t4, t5)
             f, b = cosine_pair(near, j, dx, dy, dz, r2, wa, nx, ny, nz, max_d2, min_d2)
-            wide = is_wide(near[S_A, j], r2)
-            wf += f if wide else z
-            wb += b if wide else z
-            f = z if wide else f
-            b = z if wide else b
-            up, low, a = tents(dx, dy, dz, r2, frame, nx, ny, nz)
-            sf = dir_add(sf, f, up, low, a)
-            sb = dir_add(sb, b, up, low, a)
+            sf, sb, wf, wb = dir_term(sf, sb, wf, wb, f, b, near[S_A, j], dx, dy, dz, r2, frame,
+                                      nx, ny, nz)
     if gate > ZERO32:
         for j in range(n_far):
             dx = far[F_X, j] - px
@@ -597,14 +594,8 @@ def direction_sums(near, n_near, far, n_far, px, py, pz, nx, ny, nz, frame, max_
             d2 = dx * dx + dy * dy + dz * dz
             f, b = far_pair_gated(far, j, dx, dy, dz, d2, px, py, pz, nx, ny, nz, True,
                                   MEASURE_COSINE, gate)
-            wide = is_wide(far[F_WA, j], d2)
-            wf += f if wide else z
-            wb += b if wide else z
-            f = z if wide else f
-            b = z if wide else b
-            up, low, a = tents(dx, dy, dz, d2, frame, nx, ny, nz)
-            sf = dir_add(sf, f, up, low, a)
-            sb = dir_add(sb, b, up, low, a)
+            sf, sb, wf, wb = dir_term(sf, sb, wf, wb, f, b, far[F_WA, j], dx, dy, dz, d2, frame,
+                                      nx, ny, nz)
     else:
         for j in range(n_far):
             dx = far[F_X, j] - px
@@ -612,14 +603,8 @@ def direction_sums(near, n_near, far, n_far, px, py, pz, nx, ny, nz, frame, max_
             dz = far[F_Z, j] - pz
             d2 = dx * dx + dy * dy + dz * dz
             f, b = far_pair(far, j, dx, dy, dz, d2, nx, ny, nz, True, MEASURE_COSINE)
-            wide = is_wide(far[F_WA, j], d2)
-            wf += f if wide else z
-            wb += b if wide else z
-            f = z if wide else f
-            b = z if wide else b
-            up, low, a = tents(dx, dy, dz, d2, frame, nx, ny, nz)
-            sf = dir_add(sf, f, up, low, a)
-            sb = dir_add(sb, b, up, low, a)
+            sf, sb, wf, wb = dir_term(sf, sb, wf, wb, f, b, far[F_WA, j], dx, dy, dz, d2, frame,
+                                      nx, ny, nz)
     for k in range(2 * SECTORS):
         dirs[0, k] = sf[k]
         dirs[1, k] = sb[k]
@@ -724,8 +709,11 @@ def hierarchy_pass(tree, emitters, receivers, near_field, buckets, span, options
     Each bucket (a few nearby receivers) walks the tree once (:func:`gather`); then each
     of its receivers sums the far list (:func:`far_sums`), the near list's disks
     (:func:`near_disk_sums`) and, for the near list's emitters with ``r^2 < near A``,
-    swaps the disk for its barycentric cell in float64 (``polygon.cell_terms``). The
-    lists are float32 rows in per-thread scratch; each receiver's result depends only
+    swaps the disk for its barycentric cell in float64 (``polygon.cell_terms``). With
+    per-direction saturation, a receiver whose front or back sum exceeds one direction
+    bin's measure also bins the same terms by direction (:func:`direction_sums`; the
+    swapped disks leave their bins too) and its total loses the bins' excess
+    (``bunnell.direction_excess``). The lists are float32 rows in per-thread scratch; each receiver's result depends only
     on its bucket, so the output is identical for any thread count.
 
     Parameters
