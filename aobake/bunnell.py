@@ -51,11 +51,11 @@ SIDES = ("max", "front")
 
 # Opening parameter: a cluster of area A and bounding radius b is used as one emitter when
 # every receiver of a bucket is farther than sqrt(theta * max(A, pi b^2)) from its centre.
-# Measured in bench/bench_bunnell.py with per-direction saturation (the default): theta 2
-# / 4 take 0.8x / 1.4x the time of plain theta 4 on 700k vertices at RMSE 0.024 / 0.016
-# against the reference (plain theta 4: 0.061); theta 4 halves the error of 2 on facing
-# plates (0.010 vs 0.021) and touching spheres. 2 is the default: the fast method at the
-# accuracy of ~40 rays; theta 4 for small meshes.
+# Measured in bench/bench_bunnell.py with per-direction saturation (the default): on the
+# 700k crevice scene theta 2 / 4 take 2.1 / 2.95 s in all (plain sums at theta 4: 1.7 s)
+# at RMSE 0.022 / 0.015 against the reference (plain: 0.061); theta 4 more than halves the
+# error of 2 on facing plates (0.007 vs 0.018) and touching spheres. 2 is the default:
+# Embree's 16-ray time at the error of ~60 rays; theta 4 for small meshes.
 DEFAULT_THETA = 2.0
 # The theta of the plain-sum measurements (hybrid's far field, the benchmark's rows
 # without saturation).
@@ -283,9 +283,10 @@ class _Pass:
         occluders=None,
         modes=None,
     ) -> tuple[FloatArray, FloatArray]:
-        """(n, 2, N_BINS) unsaturated (front, back) sums, cumulative by distance when
-        ``binned`` (else only the last bin, the total), and (n, 3) first moments
-        ``sum (front + back term) (emitter - receiver)`` (when ``binned``, cache_mode < 2).
+        """(n, 2, N_BINS) (front, back) sums, cumulative by distance when ``binned``
+        (else only the last bin, the total, less the direction excess when directional),
+        and (n, 4) first moments ``sum (front + back term) (emitter - receiver)`` and the
+        summed terms (when ``binned``, cache_mode < 2).
 
         ``weights``: (n,) per-vertex disk weights, or (n, N_LEVELS) per weight level;
         ``cell_weights``: (n,) near-field cell weights (default: the level-0 weights).
