@@ -779,6 +779,7 @@ def hierarchy_pass(tree, emitters, receivers, near_field, buckets, span, options
         n_near, n_cand, n_far = gather(
             tree, emitters, bounds[bk], (max_distance, near, weight_r2, leveled, gate), nb, ni, fb
         )
+        binned_before = False  # the last receiver of this bucket with a normal had to bin
         for q in range(bucket_start[bk], bucket_start[bk + 1]):
             i = order[q]
             if modes[i] == 0:
@@ -800,11 +801,27 @@ def hierarchy_pass(tree, emitters, receivers, near_field, buckets, span, options
             nz32 = np.float32(nz)
             acc[:] = 0.0
             fst[:] = 0.0
+            can_bin = directional and has_normal and measure == MEASURE_COSINE
+            fr = tangent_frame(nx, ny, nz) if has_normal else (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+            frame = (np.float32(fr[0]), np.float32(fr[1]), np.float32(fr[2]), np.float32(fr[3]),
+                     np.float32(fr[4]), np.float32(fr[5]))
+            # per-direction saturation: the binned terms are a subset of the plain sums'
+            # (non-negative) terms, so where neither side's sum reaches one bin's measure
+            # no bin can overflow and the (costlier) binned loops are skipped: exact. The
+            # plain sums that decide it are skipped in turn after a neighbour in the bucket
+            # had to bin (the bins then give the totals): the same result either way.
+            binning = can_bin and binned_before
+            if binning:
+                direction_sums(nb, n_near, fb, n_far, px32, py32, pz32, nx32, ny32, nz32, frame,
+                               max_d2, np.float32(min_d2), wr2, leveled, gate_, dirs)
+                if not binned_i:
+                    acc[0, last] = dirs[0].sum()  # the bins and the wide terms
+                    acc[1, last] = dirs[1].sum()
             if binned_i:
                 binned_sums(nb, n_near, fb, n_far, px32, py32, pz32, nx32, ny32, nz32, has_normal,
                             measure, max_d2, np.float32(min_d2), wr2, br2, leveled, gate_, acc,
                             fst)
-            else:
+            elif not binning:
                 f1, b1_ = far_sums(fb, n_far, px32, py32, pz32, nx32, ny32, nz32, has_normal, measure,
                                    gate_)
                 f2, b2 = near_disk_sums(
@@ -813,19 +830,12 @@ def hierarchy_pass(tree, emitters, receivers, near_field, buckets, span, options
                 )
                 acc[0, last] = np.float64(f1) + np.float64(f2)
                 acc[1, last] = np.float64(b1_) + np.float64(b2)
-            # per-direction saturation: the binned terms are a subset of these (non-negative)
-            # terms, so where neither side's sum reaches one bin's measure no bin can
-            # overflow and the (costlier) binned loops are skipped: exact
-            binning = (
-                directional and has_normal and measure == MEASURE_COSINE
-                and max(acc[0, last], acc[1, last]) > cap
-            )
-            fr = tangent_frame(nx, ny, nz) if has_normal else (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
-            frame = (np.float32(fr[0]), np.float32(fr[1]), np.float32(fr[2]), np.float32(fr[3]),
-                     np.float32(fr[4]), np.float32(fr[5]))
-            if binning:
+            if can_bin and not binning and max(acc[0, last], acc[1, last]) > cap:
+                binning = True
                 direction_sums(nb, n_near, fb, n_far, px32, py32, pz32, nx32, ny32, nz32, frame,
                                max_d2, np.float32(min_d2), wr2, leveled, gate_, dirs)
+            if can_bin:
+                binned_before = binning
             if has_normal:
                 # near-field emitters: swap the disk (as summed above) for the cell
                 for u in range(n_cand):
