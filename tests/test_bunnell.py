@@ -18,6 +18,7 @@ from aobake.kernels import bunnell as K
 from aobake.kernels import hierarchy as KH
 from aobake.kernels import polygon as KP
 from aobake.kernels import treepass as KT
+from aobake.kernels import warps as KW
 from aobake.mesh import Surface, surface_from_arrays
 
 import shapes
@@ -621,7 +622,7 @@ def test_per_direction_saturation_only_removes_occlusion(scene, exact):
 def test_direction_bins_share_a_term_without_loss():
     """Every binned term is spread over the bins in full (shares sum to 1), continuously
     across sector borders and the pole, and wide terms go whole to the uncapped column."""
-    frame = K.tangent_frame(0.0, 0.0, 1.0)
+    frame = KW.frame(0.0, 0.0, 1.0)
     rng = np.random.default_rng(5)
     for d in rng.normal(size=(200, 3)):
         d[2] = abs(d[2]) + 1e-3

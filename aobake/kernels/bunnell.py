@@ -26,6 +26,7 @@ from numba import njit, prange
 from aobake.constants import COINCIDENT_REL, DIRECTION_SECTORS, DIRECTION_WIDE, FASTMATH, PASS_RADII
 
 from .polygon import MEASURE_COSINE, MEASURE_UNIFORM, cell_terms
+from .warps import frame as tangent_frame
 
 __all__ = [
     "MEASURE_COSINE",
@@ -43,7 +44,6 @@ __all__ = [
     "level_of",
     "receiver_factor",
     "sector_coords",
-    "tangent_frame",
     "tent",
 ]
 
@@ -159,16 +159,6 @@ def gate_factor(ox, oy, oz, px, py, pz, nx, ny, nz, r, gate):
 
 # ---------------------------------------------------------------------------------------
 # per-direction saturation (cosine measure): bins of the receiver's hemisphere
-
-
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
-def tangent_frame(nx, ny, nz):
-    """Unit tangents ``(ux, uy, uz, vx, vy, vz)`` completing the unit normal n to a right-
-    handed orthonormal frame (Duff et al. 2017: no normalisation, no branch but nz's sign)."""
-    s = 1.0 if nz >= 0.0 else -1.0
-    a = -1.0 / (s + nz)  # float64 throughout; callers cast
-    b = nx * ny * a
-    return 1.0 + s * nx * nx * a, s * b, -s * nx, b, s + ny * ny * a, -ny
 
 
 @njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")

@@ -29,7 +29,6 @@ from .bunnell import (
     is_wide,
     level_of,
     sector_coords,
-    tangent_frame,
 )
 from .hierarchy import (
     E_AREA,
@@ -60,6 +59,7 @@ from .hierarchy import (
     N_Z,
 )
 from .polygon import MEASURE_COSINE, cell_terms
+from .warps import frame as tangent_frame
 
 # Scratch rows per thread (float32): the near list (emitters of opened leaves: centre,
 # normal, area, area x weight per level, then the occluder centroid of gated passes) and
@@ -549,7 +549,8 @@ def direction_sums(near, n_near, far, n_far, px, py, pz, nx, ny, nz, frame, max_
     """The terms of :func:`near_disk_sums` and :func:`far_sums` for a receiver with a
     normal (cosine measure), by direction, into ``dirs`` (2, 17) (:func:`dir_add`, far
     nodes by their centre; wide ones, ``bunnell.is_wide``, whole into column 16). The accumulators are scalars and each case has a loop of its
-    own, so they vectorise."""
+    own, so they vectorise (one loop with a select on ``leveled`` took 2.7 instead of
+    2.25 s per pass at 700k, theta 4)."""
     t0, t1, t2, t3, t4, t5 = wr2[0], wr2[1], wr2[2], wr2[3], wr2[4], wr2[5]
     z = ZERO32
     sf = (z, z, z, z, z, z, z, z, z, z, z, z, z, z, z, z)
