@@ -249,9 +249,7 @@ class _Pass:
 
         order = tree.order
         self.rows = np.zeros((order.shape[0], _h.EMITTER_COLS), dtype=np.float32)
-        self.rows[:, _h.E_X : _h.E_Z + 1] = elements.positions[order]
-        self.rows[:, _h.E_MX : _h.E_MZ + 1] = elements.normals[order]
-        self.rows[:, _h.E_AREA] = elements.areas[order]
+        _h.emitter_rows(elements.positions, elements.normals, elements.areas, order, self.rows)
         self.weights = np.ones((order.shape[0], _k.N_LEVELS), dtype=np.float32)
         self.occluders = np.zeros((order.shape[0], 3), dtype=np.float32)
         self.nodes = pack_nodes(tree, theta=theta, near=near)
@@ -259,8 +257,9 @@ class _Pass:
         self.tree_args = (tree.skip, tree.start, tree.stop, self.nodes, self.moments)
         self.emitters = (self.rows, order, self.weights, self.occluders)
         recv_order, bucket_start = receiver_buckets(elements, tree)
-        bounds = np.zeros((bucket_start.shape[0] - 1, 5))
-        _tp.bucket_bounds(elements.points, self.receivers[2], recv_order, bucket_start, bounds)
+        bounds = np.zeros((bucket_start.shape[0] - 1, _tp.BOUND_COLS))
+        _tp.bucket_bounds(elements.points, elements.normals, self.receivers[2], recv_order,
+                          bucket_start, bounds)
         slots = numba.config.NUMBA_NUM_THREADS
         k, m = order.shape[0], tree.n_nodes
         self.bucket_start = bucket_start
@@ -320,8 +319,13 @@ class _Pass:
                 )
                 progress.advance(chunk.shape[0])
             return out, first
-        self.weights[:] = weights[self.tree.order]
-        self.occluders[:] = occluders[self.tree.order]
+        # only what this pass reads: level 0 unless leveled, the occluders when gated
+        if leveled:
+            self.weights[:] = weights[self.tree.order]
+        else:
+            self.weights[:, 0] = weights[self.tree.order, 0]
+        if leveled and self.options[7] > 0.0:
+            self.occluders[:] = occluders[self.tree.order]
         _h.refit_nodes(
             self.rows,
             self.weights,
@@ -331,6 +335,7 @@ class _Pass:
             self.tree.stop,
             self.nodes,
             self.moments,
+            leveled,
         )
         if cache_mode and not hasattr(self, "cache"):
             self.cache = np.zeros((n, 2, _k.N_BINS))

@@ -235,6 +235,26 @@ def node_geometry(positions, areas, order, start, stop, out):
         out[q, 5] = biggest
 
 
+@njit(cache=True, fastmath=FASTMATH, error_model="numpy", parallel=True)
+def emitter_rows(positions, normals, areas, order, rows):
+    """``rows[t]`` = (position, normal, area) of emitter ``order[t]`` in float32 (the
+    columns E_X..E_AREA; the others are left alone): the tree-order copy the passes read.
+
+    Parameters
+    ----------
+    positions, normals : (n, 3) float64
+    areas : (n,) float64
+    order : (k,) int64
+    rows : (k, EMITTER_COLS) float32
+    """
+    for t in prange(order.shape[0]):
+        j = order[t]
+        for c in range(3):
+            rows[t, E_X + c] = positions[j, c]
+            rows[t, E_MX + c] = normals[j, c]
+        rows[t, E_AREA] = areas[j]
+
+
 @njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
 def spread_factor(area, txx, tyy, tzz, txy, txz, tyz):
     """kappa in [sqrt(3)/2, 1] from the normal moments: with ``rho = tr(T^2) / A_w^2`` in
@@ -251,7 +271,7 @@ def spread_factor(area, txx, tyy, tzz, txy, txz, tyz):
 
 
 @njit(cache=True, fastmath=FASTMATH, error_model="numpy")
-def refit_nodes(emitters, weights, occluders, skip, start, stop, nodes, moments):
+def refit_nodes(emitters, weights, occluders, skip, start, stop, nodes, moments, leveled):
     """Per-pass node sums from the emitters' weights, one set per weight level ``l``:
     ``A_w = sum w_l A``, ``N = sum w_l A m``, ``kappa^2 T`` with ``T = sum w_l A m m^T``
     and the centroid ``sum (1 - w_l) A o / sum (1 - w_l) A`` (o: the emitter's occluder
@@ -274,9 +294,13 @@ def refit_nodes(emitters, weights, occluders, skip, start, stop, nodes, moments)
         nothing at any distance) and, from level L - 1, N_NX..N_TYZ.
     moments : (m, L, MOMENT_COLS) float32
         Written in full: per level ``(A_w, N (3), kappa^2 T (6), occluded centroid (3))``.
+    leveled : bool
+        The weights differ between levels. False (every pass 1): only level 0 is read
+        and summed, and copied to the other levels (a seventh of the work).
     """
     m = skip.shape[0]
-    levels = weights.shape[1]
+    all_levels = weights.shape[1]
+    levels = all_levels if leveled else 1
     hid = MOMENT_COLS  # extra float64 column: sum (1 - w) A
     mom = np.zeros((m, levels, MOMENT_COLS + 1))
     for q in range(m - 1, -1, -1):
@@ -325,8 +349,11 @@ def refit_nodes(emitters, weights, occluders, skip, start, stop, nodes, moments)
                 else:
                     moments[q, lv, M_OX + c] = nodes[q, N_X + c]
             most = max(most, row[0])
+        for lv in range(levels, all_levels):
+            for c in range(MOMENT_COLS):
+                moments[q, lv, c] = moments[q, 0, c]
         nodes[q, N_WAREA] = most
-        last = levels - 1
+        last = all_levels - 1
         nodes[q, N_NX] = moments[q, last, 1]
         nodes[q, N_NY] = moments[q, last, 2]
         nodes[q, N_NZ] = moments[q, last, 3]

@@ -83,24 +83,39 @@ assert N_BINS == 6, "update level_weight and binned_sums for the new PASS_RADII"
 # far above the float32 rounding of coordinates of order 1 (6e-8) in the receivers' test.
 CAND_SLACK = 1e-5
 
+# Slack of the bucket-level test that an emitter is behind every receiver's plane
+# (normalised units, relative to the distances involved): far above the float32 rounding
+# of the receivers' n.d (~1e-7 for coordinates of order 1).
+BEHIND_SLACK = 1e-5
+
 
 # Rows of the near-list scratch: the weight rows are laid out for N_LEVELS levels.
 NEAR_ROWS = S_O + 3
 
 
+# Columns of a bucket's bounds (bucket_bounds): centre, bounding radius and largest
+# inner radius of its receivers, then the cone of their normals (unit axis, largest
+# deviation |n_i - axis|) and the plane height H = max_i n_i.(centre - p_i), inf when a
+# receiver has no normal (see gather: emitters behind every receiver's plane).
+B_X, B_Y, B_Z, B_RADIUS, B_INNER, B_NX, B_NY, B_NZ, B_SPREAD, B_HEIGHT = range(10)
+BOUND_COLS = 10
+
+
 @njit(cache=True, fastmath=FASTMATH, error_model="numpy")
-def bucket_bounds(points, inner, order, bucket_start, out):
-    """Centre (mean), bounding radius and largest inner radius of each bucket's receivers:
-    ``out[b] = (x, y, z, r, inner)``.
+def bucket_bounds(points, normals, inner, order, bucket_start, out):
+    """Bounds of each bucket's receivers, ``out[b]`` (columns B_X..B_HEIGHT): centre
+    (mean), bounding radius, largest inner radius, and the cone of their normals with
+    the plane height H: for any point x, ``n_i.(x - p_i) <= axis.(x - c) + spread |x - c|
+    + H`` for every receiver i (Cauchy-Schwarz on ``n_i - axis``).
 
     Parameters
     ----------
-    points : (n, 3) float64
+    points, normals : (n, 3) float64
     inner : (n,) float64
     order : (n,) int64
         Receivers in bucket order; bucket b is ``order[bucket_start[b]:bucket_start[b + 1]]``.
     bucket_start : (nb + 1,) int64
-    out : (nb, 5) float64
+    out : (nb, BOUND_COLS) float64
     """
     for b in range(bucket_start.shape[0] - 1):
         lo = bucket_start[b]
@@ -108,16 +123,32 @@ def bucket_bounds(points, inner, order, bucket_start, out):
         cx = 0.0
         cy = 0.0
         cz = 0.0
+        ax = 0.0
+        ay = 0.0
+        az = 0.0
+        normal_less = False
         for q in range(lo, hi):
             i = order[q]
             cx += points[i, 0]
             cy += points[i, 1]
             cz += points[i, 2]
+            ax += normals[i, 0]
+            ay += normals[i, 1]
+            az += normals[i, 2]
+            nn = normals[i, 0] ** 2 + normals[i, 1] ** 2 + normals[i, 2] ** 2
+            normal_less = normal_less or nn == 0.0
         cx /= hi - lo
         cy /= hi - lo
         cz /= hi - lo
+        norm = np.sqrt(ax * ax + ay * ay + az * az)
+        if norm > 0.0:
+            ax /= norm
+            ay /= norm
+            az /= norm
         rb = 0.0
         most = 0.0
+        spread = 0.0
+        height = -np.inf
         for q in range(lo, hi):
             i = order[q]
             most = max(most, inner[i])
@@ -125,12 +156,32 @@ def bucket_bounds(points, inner, order, bucket_start, out):
             dy = points[i, 1] - cy
             dz = points[i, 2] - cz
             rb = max(rb, np.sqrt(dx * dx + dy * dy + dz * dz))
-        out[b, 0] = cx
-        out[b, 1] = cy
-        out[b, 2] = cz
+            ex = normals[i, 0] - ax
+            ey = normals[i, 1] - ay
+            ez = normals[i, 2] - az
+            spread = max(spread, np.sqrt(ex * ex + ey * ey + ez * ez))
+            height = max(height, -(normals[i, 0] * dx + normals[i, 1] * dy + normals[i, 2] * dz))
+        out[b, B_X] = cx
+        out[b, B_Y] = cy
+        out[b, B_Z] = cz
         # one float32 ulp of slack per coordinate: the receivers compare in float32
-        out[b, 3] = rb * (1.0 + 1e-6) + 1e-6 * (abs(cx) + abs(cy) + abs(cz))
-        out[b, 4] = most
+        out[b, B_RADIUS] = rb * (1.0 + 1e-6) + 1e-6 * (abs(cx) + abs(cy) + abs(cz))
+        out[b, B_INNER] = most
+        out[b, B_NX] = ax
+        out[b, B_NY] = ay
+        out[b, B_NZ] = az
+        out[b, B_SPREAD] = spread
+        out[b, B_HEIGHT] = np.inf if normal_less or norm == 0.0 else height
+
+
+@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+def behind(bound, ex, ey, ez):
+    """Offset e = x - centre lies behind every receiver's tangent plane of the bucket
+    (``bucket_bounds``), by more than BEHIND_SLACK (relative): every receiver's cosine
+    ``max(n.d, 0)``, in float32, is then exactly 0, and so is the term (any measure)."""
+    e = np.sqrt(ex * ex + ey * ey + ez * ez)
+    h = bound[B_NX] * ex + bound[B_NY] * ey + bound[B_NZ] * ez + bound[B_SPREAD] * e + bound[B_HEIGHT]
+    return h < -BEHIND_SLACK * (e + bound[B_RADIUS] + 1.0)
 
 
 @njit(cache=True, fastmath=FASTMATH, error_model="numpy")
@@ -170,11 +221,11 @@ def gather(tree, emitters, bound, options, near_buf, near_idx, far_buf):
     rows, index, weights, occluders = emitters
     max_distance, near, weight_r2, leveled, gate = options
     gated = leveled and gate > 0.0
-    bx = bound[0]
-    by = bound[1]
-    bz = bound[2]
-    rb = bound[3]
-    inner = bound[4]
+    bx = bound[B_X]
+    by = bound[B_Y]
+    bz = bound[B_Z]
+    rb = bound[B_RADIUS]
+    inner = bound[B_INNER]
     n_nodes = skip.shape[0]
     levels = weights.shape[1] if leveled else 1
     n_near = 0
@@ -200,6 +251,9 @@ def gather(tree, emitters, bound, options, near_buf, near_idx, far_buf):
             and dmin + 2.0 * rb + b <= max_distance
             and dmin - b >= inner
         ):
+            if behind(bound, dx, dy, dz):  # a zero term at every receiver
+                node = nxt
+                continue
             lv = level_of(d2, weight_r2) if leveled else 0
             far_buf[F_X, n_far] = nodes[node, N_X]
             far_buf[F_Y, n_far] = nodes[node, N_Y]
@@ -224,6 +278,15 @@ def gather(tree, emitters, bound, options, near_buf, near_idx, far_buf):
             node = nxt
         elif nxt == node + 1:
             for j in range(start[node], stop[node]):
+                # with near = 0 the disks inside the bucket's sphere (its receivers' own
+                # disks among them) are still candidates: the receivers remove their own
+                ex = rows[j, E_X] - bx
+                ey = rows[j, E_Y] - by
+                ez = rows[j, E_Z] - bz
+                gap = np.sqrt(ex * ex + ey * ey + ez * ez) - rb - CAND_SLACK
+                cand = gap <= 0.0 or gap * gap < near * rows[j, E_AREA] * (1.0 + CAND_SLACK)
+                if not cand and behind(bound, ex, ey, ez):
+                    continue  # a zero disk term at every receiver, and no cell
                 near_buf[S_X, n_near] = rows[j, E_X]
                 near_buf[S_Y, n_near] = rows[j, E_Y]
                 near_buf[S_Z, n_near] = rows[j, E_Z]
@@ -238,13 +301,7 @@ def gather(tree, emitters, bound, options, near_buf, near_idx, far_buf):
                     near_buf[S_O + 1, n_near] = occluders[j, 1]
                     near_buf[S_O + 2, n_near] = occluders[j, 2]
                 near_idx[0, n_near] = index[j]
-                # with near = 0 the disks inside the bucket's sphere (its receivers' own
-                # disks among them) are still candidates: the receivers remove their own
-                ex = rows[j, E_X] - bx
-                ey = rows[j, E_Y] - by
-                ez = rows[j, E_Z] - bz
-                gap = np.sqrt(ex * ex + ey * ey + ez * ez) - rb - CAND_SLACK
-                if gap <= 0.0 or gap * gap < near * rows[j, E_AREA] * (1.0 + CAND_SLACK):
+                if cand:
                     near_idx[1, n_cand] = n_near
                     n_cand += 1
                 n_near += 1
@@ -738,7 +795,7 @@ def hierarchy_pass(tree, emitters, receivers, near_field, buckets, span, options
         for passes whose cell weights do not change: mode 0 ignores it, 1 writes it,
         2 reads it instead of evaluating the cells again.
     buckets : tuple
-        ``(order (n,), bucket_start (nb + 1,), bounds (nb, 5), near_buf, near_idx,
+        ``(order (n,), bucket_start (nb + 1,), bounds (nb, BOUND_COLS), near_buf, near_idx,
         far_buf)``: receivers in bucket order, bucket ranges and bounds
         (:func:`bucket_bounds`), and scratch ``(T, NEAR_ROWS, k)`` float32,
         ``(T, 2, k)`` int64, ``(T, FAR_ROWS, m)`` float32 for T >= the number of numba
