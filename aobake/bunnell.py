@@ -248,6 +248,7 @@ class _Pass:
         import numba
 
         order = tree.order
+        self.perm, self.cells = _cells_in_tree_order(elements, order)
         self.rows = np.zeros((order.shape[0], _h.EMITTER_COLS), dtype=np.float32)
         _h.emitter_rows(elements.positions, elements.normals, elements.areas, order, self.rows)
         self.weights = np.ones((order.shape[0], _k.N_LEVELS), dtype=np.float32)
@@ -343,7 +344,8 @@ class _Pass:
         receivers = self.receivers
         if modes is not None:
             receivers = receivers[:3] + (np.ascontiguousarray(modes, dtype=np.uint8),)
-        near_field = (e.positions, cell_weights, e.corner_start, e.corners, cache, int(cache_mode))
+        # the near field in tree order (_cells_in_tree_order)
+        near_field = self.cells[:1] + (cell_weights[self.perm],) + self.cells[1:] + (cache, int(cache_mode))
         buckets = self.buckets
         bucket_start = buckets[1]
         n_buckets = bucket_start.shape[0] - 1
@@ -362,6 +364,26 @@ class _Pass:
             )
             progress.advance(int(bucket_start[b1] - bucket_start[b0]))
         return out, first
+
+
+def _cells_in_tree_order(elements: DiskElements, order: IndexArray):
+    """``(perm, (positions, corner_start, corners))``: the vertices renumbered so that the
+    emitters come first in tree order ``order`` (then the others), with their positions
+    and cells (``polygon.permute_cells``). A receiver's near-field cells are its
+    neighbours' and their corners are near them: in tree order they are near in memory
+    too. (Meshes whose vertex order is scattered, a loop-subdivided scan for one, spent
+    3x longer on the same cells in mesh order.)"""
+    n = elements.n_vertices
+    casts = np.zeros(n, dtype=bool)
+    casts[order] = True
+    perm = np.concatenate([order, np.flatnonzero(~casts)]).astype(np.int64)
+    inverse = np.empty(n, dtype=np.int64)
+    inverse[perm] = np.arange(n, dtype=np.int64)
+    start = np.zeros(n + 1, dtype=np.int64)
+    np.cumsum(np.diff(elements.corner_start)[perm], out=start[1:])
+    corners = np.empty_like(elements.corners)
+    _poly.permute_cells(elements.corner_start, elements.corners, perm, inverse, start, corners)
+    return perm, (np.ascontiguousarray(elements.positions[perm]), start, corners)
 
 
 def pass_representatives(elements: DiskElements, tree: ClusterTree) -> IndexArray:

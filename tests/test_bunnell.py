@@ -830,6 +830,93 @@ def test_receiver_buckets_cover_every_vertex_once():
     assert sizes.min() >= 1 and sizes.max() <= 4
 
 
+@settings(max_examples=60, deadline=None)
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    spread=st.sampled_from([0.0, 1e-3, 0.3, 1.5]),
+    normal_less=st.booleans(),
+)
+def test_bucket_culls_only_emitters_behind_every_receiver(seed, spread, normal_less):
+    """The bucket-level cull (treepass.behind) against each receiver's own float32 n.d:
+    whatever it drops has n.d <= 0 at every receiver of the bucket, so its term is an
+    exact 0 (flat buckets with equal normals, curved ones, wide normal cones, a receiver
+    without a normal, which stops every cull)."""
+    rng = np.random.default_rng(seed)
+    k = 16
+    points = rng.normal(scale=0.01, size=(k, 3)) + rng.uniform(-1, 1, size=3)
+    axis = rng.normal(size=3)
+    normals = axis / np.linalg.norm(axis) + spread * rng.normal(size=(k, 3))
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    if spread == 0.0:  # a flat patch: the receivers in one plane
+        points -= np.outer((points - points[0]) @ normals[0], normals[0])
+    if normal_less:
+        normals[rng.integers(k)] = 0.0
+    bounds = np.zeros((1, KT.BOUND_COLS))
+    KT.bucket_bounds(points, normals, np.zeros(k), np.arange(k), np.array([0, k]), bounds)
+    centre = bounds[0, :3]
+    # emitters at every scale around the bucket, some in its receivers' planes
+    emitters = centre + rng.normal(size=(400, 3)) * rng.choice([1e-3, 1e-2, 0.3], size=(400, 1))
+    emitters[:50] = points[rng.integers(k, size=50)] + 1e-3 * np.cross(
+        normals[rng.integers(k, size=50)], rng.normal(size=(50, 3))
+    )
+    emitters = emitters.astype(np.float32)
+    culled = np.array([KT.behind(bounds[0], *(e.astype(np.float64) - centre)) for e in emitters])
+    if normal_less:
+        assert not culled.any()
+        return
+    d = emitters[culled][None, :, :] - points.astype(np.float32)[:, None, :]
+    nd = np.einsum("ij,ikj->ik", normals.astype(np.float32), d)
+    assert np.all(nd <= 0.0)
+    if spread == 0.0:  # flat bucket: everything well below the plane goes
+        low = (emitters - points[0].astype(np.float32)) @ normals[0].astype(np.float32)
+        assert culled[low < -1e-3].all()
+
+
+def test_bucket_cull_drops_the_far_side_of_a_ball():
+    """A receiver bucket on a ball: its list holds the near side only (the cull is on),
+    and the sums still equal the exact ones (test_tree_matches_exact_sum_at_huge_theta)."""
+    e = B.build_elements(surface_from_arrays(*icosphere(4)))
+    t = B.build_tree(e, leaf_size=8)
+    job = B._Pass(e, t, np.inf, 0.0, K.MEASURE_COSINE, np.inf)
+    job.sums(np.ones((e.n_vertices, K.N_LEVELS)), B.NullProgress())
+    _, _, bounds, near_buf, near_idx, far_buf = job.buckets
+    n_near, _, n_far = KT.gather(
+        job.tree_args, job.emitters, bounds[0], (np.inf, 0.0, job.options[5], False, 0.0),
+        near_buf[0], near_idx[0], far_buf[0],
+    )
+    assert n_far == 0  # theta inf: every leaf opened
+    assert n_near < 0.6 * e.n_emitters
+
+
+def test_cells_in_tree_order_are_the_same_cells():
+    """The near field's tree-order renumbering (bunnell._cells_in_tree_order) gives every
+    receiver the same cell terms, and a bake does not depend on the vertex order."""
+    s = small_scene()
+    e = B.build_elements(s)
+    t = B.build_tree(e, leaf_size=4)
+    perm, (positions, start, corners) = B._cells_in_tree_order(e, t.order)
+    inverse = np.argsort(perm)
+    quad = np.empty((4, 3))
+    rng = np.random.default_rng(0)
+    for j in rng.choice(e.n_vertices, 40, replace=False):
+        p = e.positions[j] + rng.normal(scale=0.05, size=3)
+        n = rng.normal(size=3)
+        n /= np.linalg.norm(n)
+        for measure in (K.MEASURE_COSINE, K.MEASURE_UNIFORM):
+            want = KP.cell_terms(e.positions, e.corner_start, e.corners, j, *p, *n, measure, quad)
+            got = KP.cell_terms(positions, start, corners, inverse[j], *p, *n, measure, quad)
+            assert got == want
+    # the same mesh with its vertices shuffled bakes the same values
+    big = sphere_on_plane(subdivisions=3, cells=30)
+    shuffle = rng.permutation(big.n_vertices)
+    back = np.argsort(shuffle)
+    shuffled = surface_from_arrays(big.positions[shuffle], back[big.faces], big.normals[shuffle])
+    # (theta inf: the two trees may cluster ties differently, the sums may not differ)
+    np.testing.assert_allclose(
+        B.bunnell_ao(shuffled, theta=np.inf), B.bunnell_ao(big, theta=np.inf)[shuffle], atol=1e-6
+    )
+
+
 def test_tree_splits_coincident_centres_by_index():
     """All disks at one point (a fan of split vertices): the build terminates, leaves small."""
     k = 50

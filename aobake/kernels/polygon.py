@@ -22,7 +22,7 @@ J. Hoberock and Y. Jia, "High-Quality Ambient Occlusion", GPU Gems 3, ch. 12 (20
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 from aobake.constants import FASTMATH, NEAR_PLANE_REL
 
@@ -239,6 +239,32 @@ def cell_corners(faces, n_vertices):
             corners[fill[v], 1] = faces[f, (k + 2) % 3]
             fill[v] += 1
     return corner_start, corners
+
+
+@njit(cache=True, error_model="numpy", parallel=True)
+def permute_cells(corner_start, corners, perm, inverse, start_out, corners_out):
+    """The cells of :func:`cell_corners` renumbered: vertex ``perm[k]`` becomes k.
+
+    ``start_out`` must hold the new row starts (the cumulated cell sizes in the new
+    order); row r of the cell of ``perm[k]`` is copied to row ``start_out[k] + r`` with
+    both corners mapped through ``inverse`` (``inverse[perm[k]] = k``). The disk method
+    lays the cells out in tree order this way, so that the cells a bucket's receivers
+    evaluate, and their corners, lie close together in memory.
+
+    Parameters
+    ----------
+    corner_start : (n + 1,) int64
+    corners : (c, 2) int64
+    perm, inverse : (n,) int64
+    start_out : (n + 1,) int64
+    corners_out : (c, 2) int64
+    """
+    for k in prange(perm.shape[0]):
+        v = perm[k]
+        lo = corner_start[v]
+        for r in range(corner_start[v + 1] - lo):
+            corners_out[start_out[k] + r, 0] = inverse[corners[lo + r, 0]]
+            corners_out[start_out[k] + r, 1] = inverse[corners[lo + r, 1]]
 
 
 @njit(cache=True, error_model="numpy")

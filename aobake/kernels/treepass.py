@@ -213,8 +213,8 @@ def gather(tree, emitters, bound, options, near_buf, near_idx, far_buf):
     Returns
     -------
     n_near, n_cand, n_far : int
-        Entries written: ``near_buf[:, :n_near]`` and ``near_idx[0, :n_near]`` (vertex
-        index), ``near_idx[1, :n_cand]`` (candidates' positions in the near list),
+        Entries written: ``near_buf[:, :n_near]`` and ``near_idx[0, :n_near]`` (tree
+        positions), ``near_idx[1, :n_cand]`` (candidates' positions in the near list),
         ``far_buf[:, :n_far]``.
     """
     skip, start, stop, nodes, moments = tree
@@ -300,7 +300,7 @@ def gather(tree, emitters, bound, options, near_buf, near_idx, far_buf):
                     near_buf[S_O, n_near] = occluders[j, 0]
                     near_buf[S_O + 1, n_near] = occluders[j, 1]
                     near_buf[S_O + 2, n_near] = occluders[j, 2]
-                near_idx[0, n_near] = index[j]
+                near_idx[0, n_near] = j
                 if cand:
                     near_idx[1, n_cand] = n_near
                     n_cand += 1
@@ -790,8 +790,10 @@ def hierarchy_pass(tree, emitters, receivers, near_field, buckets, span, options
         ``binned``.
     near_field : tuple
         ``(positions (n, 3), weights (n,), corner_start, corners, cache (n, 2, N_BINS),
-        cache_mode)``: float64 vertex positions, the cells' pass weights, the cell
-        corners, and a cache of each receiver's cell sums (cumulative by distance bin)
+        cache_mode)``: float64 vertex positions, the cells' pass weights and the cell
+        corners renumbered to tree order (row k is the emitter at tree position k, the
+        other vertices follow; ``polygon.permute_cells``: a bucket's cells lie close
+        together in memory), and a cache of each receiver's cell sums (cumulative by distance bin)
         for passes whose cell weights do not change: mode 0 ignores it, 1 writes it,
         2 reads it instead of evaluating the cells again.
     buckets : tuple
@@ -814,6 +816,7 @@ def hierarchy_pass(tree, emitters, receivers, near_field, buckets, span, options
         When ``binned`` and ``cache_mode != 2``: as in ``bunnell.brute_force_pass``.
     """
     positions, cell_weights, corner_start, corners, cache, cache_mode = near_field
+    index = emitters[1]
     points, normals, inner, modes = receivers
     order, bucket_start, bounds, near_buf, near_idx, far_buf = buckets
     measure, max_distance, near, binned, bin_r2, weight_r2, leveled, gate, directional = options
@@ -898,10 +901,10 @@ def hierarchy_pass(tree, emitters, receivers, near_field, buckets, span, options
                 # near-field emitters: swap the disk (as summed above) for the cell
                 for u in range(n_cand):
                     t = ni[1, u]
-                    j = ni[0, t]
+                    j = ni[0, t]  # tree position: the near-field arrays are in tree order
                     # the receiver's own disk: summed above unless the receiver sits
                     # straight above its vertex (a contact moves it aside), removed here
-                    own = j == i
+                    own = index[j] == i
                     if not own and not is_near(
                         nb[S_X, t], nb[S_Y, t], nb[S_Z, t], nb[S_A, t], px, py, pz, near
                     ):
