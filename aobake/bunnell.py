@@ -349,6 +349,9 @@ class _Pass:
         buckets = self.buckets
         bucket_start = buckets[1]
         n_buckets = bucket_start.shape[0] - 1
+        import numba
+
+        threads = numba.get_num_threads()
         for b0 in range(0, n_buckets, CHUNK_BUCKETS):
             b1 = min(b0 + CHUNK_BUCKETS, n_buckets)
             _tp.hierarchy_pass(
@@ -357,7 +360,7 @@ class _Pass:
                 receivers,
                 near_field,
                 buckets,
-                (b0, b1),
+                (b0, b1, threads),
                 options,
                 out,
                 first,
