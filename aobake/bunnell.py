@@ -385,8 +385,10 @@ def _cells_in_tree_order(elements: DiskElements, order: IndexArray):
     start = np.zeros(n + 1, dtype=np.int64)
     np.cumsum(np.diff(elements.corner_start)[perm], out=start[1:])
     corners = np.empty_like(elements.corners)
-    _poly.permute_cells(elements.corner_start, elements.corners, perm, inverse, start, corners)
-    return perm, (np.ascontiguousarray(elements.positions[perm]), start, corners)
+    reach = np.empty(n)
+    _poly.permute_cells(elements.positions, elements.corner_start, elements.corners, perm,
+                        inverse, start, corners, reach)
+    return perm, (np.ascontiguousarray(elements.positions[perm]), start, corners, reach)
 
 
 def pass_representatives(elements: DiskElements, tree: ClusterTree) -> IndexArray:

@@ -890,22 +890,34 @@ def test_bucket_cull_drops_the_far_side_of_a_ball():
 
 def test_cells_in_tree_order_are_the_same_cells():
     """The near field's tree-order renumbering (bunnell._cells_in_tree_order) gives every
-    receiver the same cell terms, and a bake does not depend on the vertex order."""
+    receiver the same cell terms, a cell deeper than its reach below the receiver's plane
+    has none (the tree pass skips it), and a bake does not depend on the vertex order."""
     s = small_scene()
     e = B.build_elements(s)
     t = B.build_tree(e, leaf_size=4)
-    perm, (positions, start, corners) = B._cells_in_tree_order(e, t.order)
+    perm, (positions, start, corners, reach) = B._cells_in_tree_order(e, t.order)
     inverse = np.argsort(perm)
     quad = np.empty((4, 3))
     rng = np.random.default_rng(0)
-    for j in rng.choice(e.n_vertices, 40, replace=False):
-        p = e.positions[j] + rng.normal(scale=0.05, size=3)
-        n = rng.normal(size=3)
-        n /= np.linalg.norm(n)
-        for measure in (K.MEASURE_COSINE, K.MEASURE_UNIFORM):
-            want = KP.cell_terms(e.positions, e.corner_start, e.corners, j, *p, *n, measure, quad)
-            got = KP.cell_terms(positions, start, corners, inverse[j], *p, *n, measure, quad)
-            assert got == want
+    skipped = 0
+    for j in rng.choice(e.n_vertices, 60, replace=False):
+        # the reach: the farthest corner of the cell's quads from its vertex (numpy)
+        b, c = e.positions[e.corners[e.corner_start[j] : e.corner_start[j + 1]]].transpose(1, 0, 2)
+        e1, e2 = b - e.positions[j], c - e.positions[j]
+        far = [np.linalg.norm(x, axis=1) for x in (e1 / 2, (e1 + e2) / 3, e2 / 2)]
+        np.testing.assert_allclose(reach[inverse[j]], np.max(far, initial=0.0), rtol=1e-12)
+        for _ in range(3):
+            p = e.positions[j] + rng.normal(scale=0.05, size=3)
+            n = rng.normal(size=3)
+            n /= np.linalg.norm(n)
+            for measure in (K.MEASURE_COSINE, K.MEASURE_UNIFORM):
+                want = KP.cell_terms(e.positions, e.corner_start, e.corners, j, *p, *n, measure, quad)
+                got = KP.cell_terms(positions, start, corners, inverse[j], *p, *n, measure, quad)
+                assert got == want
+                if n @ (e.positions[j] - p) < -reach[inverse[j]]:  # the tree pass skips it
+                    assert want == (0.0, 0.0)
+                    skipped += 1
+    assert skipped > 10
     # the same mesh with its vertices shuffled bakes the same values
     big = sphere_on_plane(subdivisions=3, cells=30)
     shuffle = rng.permutation(big.n_vertices)

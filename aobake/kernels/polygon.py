@@ -242,8 +242,12 @@ def cell_corners(faces, n_vertices):
 
 
 @njit(cache=True, error_model="numpy", parallel=True)
-def permute_cells(corner_start, corners, perm, inverse, start_out, corners_out):
-    """The cells of :func:`cell_corners` renumbered: vertex ``perm[k]`` becomes k.
+def permute_cells(positions, corner_start, corners, perm, inverse, start_out, corners_out,
+                  reach_out):
+    """The cells of :func:`cell_corners` renumbered: vertex ``perm[k]`` becomes k, with
+    each cell's reach ``reach_out[k]``, the largest distance from its vertex to a corner
+    of its quads (:func:`cell_terms`): a receiver whose tangent plane has the vertex
+    lower than ``-reach`` sees no part of the cell.
 
     ``start_out`` must hold the new row starts (the cumulated cell sizes in the new
     order); row r of the cell of ``perm[k]`` is copied to row ``start_out[k] + r`` with
@@ -253,18 +257,35 @@ def permute_cells(corner_start, corners, perm, inverse, start_out, corners_out):
 
     Parameters
     ----------
+    positions : (n, 3) float64
     corner_start : (n + 1,) int64
     corners : (c, 2) int64
     perm, inverse : (n,) int64
     start_out : (n + 1,) int64
     corners_out : (c, 2) int64
+    reach_out : (n,) float64
     """
     for k in prange(perm.shape[0]):
         v = perm[k]
         lo = corner_start[v]
+        reach = 0.0
         for r in range(corner_start[v + 1] - lo):
-            corners_out[start_out[k] + r, 0] = inverse[corners[lo + r, 0]]
-            corners_out[start_out[k] + r, 1] = inverse[corners[lo + r, 1]]
+            b = corners[lo + r, 0]
+            c = corners[lo + r, 1]
+            corners_out[start_out[k] + r, 0] = inverse[b]
+            corners_out[start_out[k] + r, 1] = inverse[c]
+            e1 = 0.0
+            e2 = 0.0
+            e3 = 0.0
+            for a in range(3):
+                d1 = positions[b, a] - positions[v, a]
+                d2 = positions[c, a] - positions[v, a]
+                e1 += d1 * d1
+                e2 += d2 * d2
+                e3 += (d1 + d2) * (d1 + d2)
+            # the quad's corners: j + e1 / 2, j + (e1 + e2) / 3, j + e2 / 2
+            reach = max(reach, 0.5 * np.sqrt(e1), 0.5 * np.sqrt(e2), np.sqrt(e3) / 3.0)
+        reach_out[k] = reach
 
 
 @njit(cache=True, error_model="numpy")
