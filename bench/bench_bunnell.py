@@ -13,11 +13,13 @@ Prints Markdown tables measured in one run (not a test; no assertions):
 4. the contenders on the big scene timed round-robin (best of 3 rounds), so that load from
    other processes hits all of them alike, with their error against the reference;
 5. a second ~700k-vertex scene (the bunny, loop-subdivided, on a floor): the same
-   contenders, round-robin.
+   contenders, round-robin;
+6. vertex order: one pass on both big scenes, as generated and with the vertices
+   shuffled.
 
 References are cached in bench/results/ (Embree 1024 rays on 700k vertices takes minutes).
 
-Usage: ``python bench/bench_bunnell.py [--quick] [--threads N] [--sections 12345]``.
+Usage: ``python bench/bench_bunnell.py [--quick] [--threads N] [--sections 123456]``.
 Timings are wall-clock seconds (best of ``--repeats``) with CPU seconds beside them:
 CPU / wall shows how many cores the run really had on a shared machine.
 """
@@ -296,11 +298,35 @@ def section_bunny(n_vertices):
     round_robin(surface, reference("bunny_on_ground", surface))
 
 
+def section_vertex_order(n_vertices, repeats):
+    """Per-pass time on both big scenes in their generated vertex order and shuffled
+    (scanned and subdivided meshes come in any order): the cells are read in tree order,
+    so the order should cost little."""
+    from aobake.mesh import surface_from_arrays
+
+    print(f"\n## 6. Vertex order: one pass at the defaults, generated vs shuffled order "
+          f"(best of {repeats})\n")
+    rows = []
+    for name, make in (("spheres", common.spheres_on_ground), ("bunny", common.bunny_on_ground)):
+        s, _ = make(n_vertices)
+        shuffle = np.random.default_rng(0).permutation(s.n_vertices)
+        back = np.argsort(shuffle)
+        shuffled = surface_from_arrays(s.positions[shuffle], back[s.faces], s.normals[shuffle])
+        row = [f"{name} ({s.n_vertices})"]
+        for surface in (s, shuffled):
+            elements = B.build_elements(surface)
+            tree = B.build_tree(elements)
+            _, t1, c1 = run(lambda e=elements, t=tree: B.occlusion_passes(e, t), repeats)
+            row.append(f"{t1:.2f} ({c1:.2f})")
+        rows.append(row)
+    print(common.markdown_table(["scene", "generated order s (CPU)", "shuffled s (CPU)"], rows))
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="100k instead of 700k vertices")
     parser.add_argument("--threads", type=int, default=None, help="numba threads (default: all)")
-    parser.add_argument("--sections", default="12345", help="which sections to run, e.g. 13")
+    parser.add_argument("--sections", default="123456", help="which sections to run, e.g. 13")
     parser.add_argument("--repeats", type=int, default=2, help="best of this many runs")
     parser.add_argument("--check", type=int, default=2000, help="receivers checked against the exact sum")
     args = parser.parse_args()
@@ -324,6 +350,8 @@ def main():
         section_timing(list(all_scenes.values())[-1])
     if "5" in args.sections:
         section_bunny(100_000 if args.quick else 700_000)
+    if "6" in args.sections:
+        section_vertex_order(100_000 if args.quick else 700_000, args.repeats)
 
 
 if __name__ == "__main__":
