@@ -97,8 +97,10 @@ CELL_SLACK = 1e-9
 # floor, 2 threads: the busier thread's sum of bucket times was 2.39 s with one
 # contiguous share per thread, where an even split is 1.84 s; per pass (one run, best
 # of 4) 2.42 s contiguous, 1.99 s in blocks of 16, 1.95 s in blocks of 64, and 1.25,
-# 1.28, 1.26 s on the 700k spheres scene (locality: blocks of neighbours).
-SCHEDULE_BLOCK = 256
+# 1.28, 1.26 s on the 700k spheres scene (locality: blocks of neighbours). Another run:
+# blocks of 32 / 64 / 256 took 1.28 / 1.34 / 1.52 s (spheres), 2.10 / 2.13 / 2.18 s
+# (bunny).
+SCHEDULE_BLOCK = 64
 
 # Rows of the near-list scratch: the weight rows are laid out for N_LEVELS levels.
 NEAR_ROWS = S_O + 3
