@@ -371,6 +371,13 @@ class _Pass:
         return out, first
 
 
+def _non_emitters(n: int, order: IndexArray) -> IndexArray:
+    """The vertices that are not in the tree (``order``: the emitters), ascending."""
+    casts = np.zeros(n, dtype=bool)
+    casts[order] = True
+    return np.flatnonzero(~casts)
+
+
 def _cells_in_tree_order(elements: DiskElements, order: IndexArray):
     """``(perm, (positions, corner_start, corners))``: the vertices renumbered so that the
     emitters come first in tree order ``order`` (then the others), with their positions
@@ -379,9 +386,7 @@ def _cells_in_tree_order(elements: DiskElements, order: IndexArray):
     too. (Meshes whose vertex order is scattered, a loop-subdivided scan for one, spent
     3x longer on the same cells in mesh order.)"""
     n = elements.n_vertices
-    casts = np.zeros(n, dtype=bool)
-    casts[order] = True
-    perm = np.concatenate([order, np.flatnonzero(~casts)]).astype(np.int64)
+    perm = np.concatenate([order, _non_emitters(n, order)]).astype(np.int64)
     inverse = np.empty(n, dtype=np.int64)
     inverse[perm] = np.arange(n, dtype=np.int64)
     start = np.zeros(n + 1, dtype=np.int64)
@@ -420,9 +425,7 @@ def receiver_buckets(elements: DiskElements, tree: ClusterTree) -> tuple[IndexAr
     leaves = tree.leaves
     starts = [tree.start[leaves]]
     order = [tree.order]
-    casts = np.zeros(elements.n_vertices, dtype=bool)
-    casts[tree.order] = True
-    rest = np.flatnonzero(~casts)
+    rest = _non_emitters(elements.n_vertices, tree.order)
     if rest.size:
         perm, start, _, skip = _h.build_tree(tree_keys(elements.points[rest]), tree.leaf_size)
         rest_leaves = np.flatnonzero(skip == np.arange(1, skip.shape[0] + 1))
@@ -531,11 +534,9 @@ def occlusion_passes(
     share = share_passes and tree is not None and passes > 1
     if share:
         rep_of = pass_representatives(elements, tree)
-        casts = np.zeros(n, dtype=np.bool_)
-        casts[tree.order] = True
         # representatives in tree order (neighbours), then the vertices that do not cast
         evaluated = np.concatenate(
-            [tree.order[rep_of[tree.order] == tree.order], np.flatnonzero(~casts)]
+            [tree.order[rep_of[tree.order] == tree.order], _non_emitters(n, tree.order)]
         )
     progress.start(passes * n, "bunnell")  # every pass walks every bucket
     with numba_threads(threads), np.errstate(under="ignore"):

@@ -860,7 +860,8 @@ def test_bucket_culls_only_emitters_behind_every_receiver(seed, spread, normal_l
         normals[rng.integers(k, size=50)], rng.normal(size=(50, 3))
     )
     emitters = emitters.astype(np.float32)
-    culled = np.array([KT.behind(bounds[0], *(e.astype(np.float64) - centre)) for e in emitters])
+    offsets = emitters.astype(np.float64) - centre
+    culled = np.array([KT.behind(bounds[0], *e, np.linalg.norm(e)) for e in offsets])
     if normal_less:
         assert not culled.any()
         return

@@ -188,11 +188,11 @@ def bucket_bounds(points, normals, inner, order, bucket_start, out):
 
 
 @njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
-def behind(bound, ex, ey, ez):
-    """Offset e = x - centre lies behind every receiver's tangent plane of the bucket
-    (``bucket_bounds``), by more than BEHIND_SLACK (relative): every receiver's cosine
-    ``max(n.d, 0)``, in float32, is then exactly 0, and so is the term (any measure)."""
-    e = np.sqrt(ex * ex + ey * ey + ez * ez)
+def behind(bound, ex, ey, ez, e):
+    """Offset (ex, ey, ez) = x - centre, of length e, lies behind every receiver's tangent
+    plane of the bucket (``bucket_bounds``), by more than BEHIND_SLACK (relative): every
+    receiver's cosine ``max(n.d, 0)``, in float32, is then exactly 0, and so is the term
+    (any measure)."""
     h = bound[B_NX] * ex + bound[B_NY] * ey + bound[B_NZ] * ez + bound[B_SPREAD] * e + bound[B_HEIGHT]
     return h < -BEHIND_SLACK * (e + bound[B_RADIUS] + 1.0)
 
@@ -255,7 +255,8 @@ def gather(tree, emitters, bound, options, near_buf, near_idx, far_buf):
         dz = nodes[node, N_Z] - bz
         b = nodes[node, N_RADIUS]
         d2 = dx * dx + dy * dy + dz * dz
-        dmin = np.sqrt(d2) - rb
+        dist = np.sqrt(d2)
+        dmin = dist - rb
         if dmin - b > max_distance:
             node = nxt
         elif (
@@ -264,7 +265,7 @@ def gather(tree, emitters, bound, options, near_buf, near_idx, far_buf):
             and dmin + 2.0 * rb + b <= max_distance
             and dmin - b >= inner
         ):
-            if behind(bound, dx, dy, dz):  # a zero term at every receiver
+            if behind(bound, dx, dy, dz, dist):  # a zero term at every receiver
                 node = nxt
                 continue
             lv = level_of(d2, weight_r2) if leveled else 0
@@ -296,9 +297,10 @@ def gather(tree, emitters, bound, options, near_buf, near_idx, far_buf):
                 ex = rows[j, E_X] - bx
                 ey = rows[j, E_Y] - by
                 ez = rows[j, E_Z] - bz
-                gap = np.sqrt(ex * ex + ey * ey + ez * ez) - rb - CAND_SLACK
+                e = np.sqrt(ex * ex + ey * ey + ez * ez)
+                gap = e - rb - CAND_SLACK
                 cand = gap <= 0.0 or gap * gap < near * rows[j, E_AREA] * (1.0 + CAND_SLACK)
-                if not cand and behind(bound, ex, ey, ez):
+                if not cand and behind(bound, ex, ey, ez, e):
                     continue  # a zero disk term at every receiver, and no cell
                 near_buf[S_X, n_near] = rows[j, E_X]
                 near_buf[S_Y, n_near] = rows[j, E_Y]
@@ -850,18 +852,19 @@ def hierarchy_pass(tree, emitters, receivers, near_field, buckets, span, options
     n_blocks = (b1 - b0 + SCHEDULE_BLOCK - 1) // SCHEDULE_BLOCK
     per_thread = (n_blocks + n_threads - 1) // n_threads * SCHEDULE_BLOCK
     for w in prange(n_threads):
+        # this thread's scratch, reused for all its buckets (every use overwrites it)
+        tid = numba.get_thread_id()
+        nb = near_buf[tid]
+        ni = near_idx[tid]
+        fb = far_buf[tid]
+        quad = np.empty((4, 3))
+        acc = np.zeros((2, last + 1))
+        fst = np.zeros(3)
+        dirs = np.zeros((2, 2 * SECTORS + 1))
         for c in range(per_thread):
             bk = b0 + (w + c // SCHEDULE_BLOCK * n_threads) * SCHEDULE_BLOCK + c % SCHEDULE_BLOCK
             if bk >= b1:
                 break
-            tid = numba.get_thread_id()
-            nb = near_buf[tid]
-            ni = near_idx[tid]
-            fb = far_buf[tid]
-            quad = np.empty((4, 3))
-            acc = np.zeros((2, last + 1))
-            fst = np.zeros(3)
-            dirs = np.zeros((2, 2 * SECTORS + 1))
             n_near, n_cand, n_far = gather(
                 tree, emitters, bounds[bk], (max_distance, near, weight_r2, leveled, gate), nb, ni, fb
             )
