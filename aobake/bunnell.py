@@ -22,7 +22,7 @@ import numpy as np
 from ._types import AOArray, FloatArray, IndexArray
 from .constants import NEAR_OFFSET_REL, PASS_GATE_WIDTH, PASS_RADII
 from .errors import NumericalError
-from .hierarchy import ClusterTree, pack_nodes, refit_tree, tree_keys
+from .hierarchy import ClusterTree, node_coherence, pack_nodes, refit_tree, tree_keys
 from .hierarchy import build_tree as _build_tree
 from .kernels import bunnell as _k
 from .kernels import hierarchy as _h
@@ -255,7 +255,8 @@ class _Pass:
         _h.emitter_rows(elements.positions, elements.normals, elements.areas, order, self.rows)
         self.weights = np.ones((order.shape[0], _k.N_LEVELS), dtype=np.float32)
         self.occluders = np.zeros((order.shape[0], 3), dtype=np.float32)
-        self.nodes = pack_nodes(tree, theta=theta, near=near)
+        coherence = node_coherence(tree, elements.normals, elements.areas)
+        self.nodes = pack_nodes(tree, theta=theta, near=near, coherence=coherence)
         self.moments = np.zeros((tree.n_nodes, _k.N_LEVELS, _h.MOMENT_COLS), dtype=np.float32)
         self.tree_args = (tree.skip, tree.start, tree.stop, self.nodes, self.moments)
         self.emitters = (self.rows, order, self.weights, self.occluders)
@@ -723,10 +724,12 @@ def bunnell_ao(
     theta : float, optional
         Opening parameter > 0: a cluster of summed area A and bounding radius b (disks
         included) is used as one emitter only when every receiver of a bucket is at
-        ``d^2 >= theta * max(A, pi b^2)`` from its centre (and outside the near-field
-        reach of its disks); otherwise it is opened. ``max(A, pi b^2)`` is Bunnell's and
-        Hoberock's ``d^2 >= eps A`` for compact clusters and keeps long thin clusters
-        (A << b^2) from being merged too close. Larger = more accurate and slower;
+        ``d^2 >= theta * max(A, pi b^2) (1 + OPEN_COHERENCE (1 - c))`` from its centre (and
+        outside the near-field reach of its disks); otherwise it is opened.
+        ``max(A, pi b^2)`` is Bunnell's and Hoberock's ``d^2 >= eps A`` for compact
+        clusters and keeps long thin clusters (A << b^2) from being merged too close;
+        ``c = |sum A m| / sum A`` (:func:`aobake.hierarchy.node_coherence`) opens
+        clusters whose normals disagree (facing plates, both sides of a ball) sooner. Larger = more accurate and slower;
         theta -> inf is the exact sum.
     near : float, optional
         Near-field factor >= 0: disks with ``r^2 < near A_j`` are replaced by their cells

@@ -95,6 +95,16 @@ TREE_KEY_STEPS = 1 << 20
 # stack never holds more than ~log2(k) + 2 entries; 128 covers any k < 2**120.
 TREE_BUILD_STACK = 128
 
+# Opening the disk method's cluster tree (aobake.hierarchy.pack_nodes): a node whose disks'
+# normals disagree is a poor point emitter (one whose disks lie on two facing plates, or on
+# both sides of a ball, has its centre in the empty space between them), so its opening
+# distance grows with the disagreement: open_d2 = theta max(A, pi b^2) (1 + OPEN_COHERENCE
+# (1 - |sum A m| / sum A)). Measured with bench/bench_bunnell.py's scenes at theta 2: 0 (the
+# published criterion) 700k spheres 0.022, 700k bunny scene 0.023, facing plates 0.018
+# (tree against exact sum: 0.014); 1: 0.019, 0.020, plates' tree error 0.004; 3: 0.017,
+# 0.018, plates 0.005 (tree error 0.0005) at 0-10% more time per pass; 6 no better.
+OPEN_COHERENCE = 3.0
+
 # Passes >= 2 (aobake.bunnell): an emitter at distance r from a receiver is weighted by its
 # own accessibility from the geometry within PASS_REACH * r of it, read off distance bins
 # with these outer radii (normalised units: the scene's largest extent is 1). A factor of

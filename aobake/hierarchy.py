@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ._types import FloatArray, IndexArray
-from .constants import TREE_KEY_STEPS
+from .constants import OPEN_COHERENCE, TREE_KEY_STEPS
 from .kernels import hierarchy as _k
 
 
@@ -140,21 +140,43 @@ def node_geometry(positions, areas, order, start, stop) -> FloatArray:
     return out
 
 
-def pack_nodes(tree: ClusterTree, *, theta: float, near: float) -> np.ndarray:
+def node_coherence(tree: ClusterTree, normals: FloatArray, areas: FloatArray) -> FloatArray:
+    """(m,) float64 in [0, 1]: per node ``|sum A m| / sum A`` over its disks (unit normals
+    m): 1 for a flat patch, near 0 for a node whose normals cancel (two facing plates,
+    both sides of a ball). Prefix sums in tree order: O(k + m)."""
+    order = tree.order
+    areas = np.asarray(areas, dtype=np.float64)[order]
+    am = np.asarray(normals, dtype=np.float64)[order] * areas[:, None]
+    cum = np.zeros((order.shape[0] + 1, 4))
+    np.cumsum(np.column_stack([am, areas]), axis=0, out=cum[1:])
+    sums = cum[tree.stop] - cum[tree.start]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        c = np.linalg.norm(sums[:, :3], axis=1) / sums[:, 3]
+    return np.clip(np.nan_to_num(c, nan=1.0), 0.0, 1.0)
+
+
+def pack_nodes(
+    tree: ClusterTree, *, theta: float, near: float, coherence: FloatArray | None = None
+) -> np.ndarray:
     """float32 node rows (``_k.N_*``) for one opening parameter; per-pass columns zero.
 
-    ``open_d2 = max(theta max(A, pi b^2), (b + sqrt(near A_max))^2)``: a node is used
-    whole only when the receivers are farther than this from its centre: far for its
-    size, and beyond the near-field reach ``sqrt(near A_j)`` of every disk in it (which
-    also keeps them outside its bounding sphere). The squared distance is rounded up to
-    the next float32 so the float32 comparison never accepts a node closer than this.
+    ``open_d2 = max(theta max(A, pi b^2) (1 + OPEN_COHERENCE (1 - c)), (b + sqrt(near
+    A_max))^2)``: a node is used whole only when the receivers are farther than this from
+    its centre: far for its size (and farther when its normals disagree: ``c`` from
+    :func:`node_coherence`, 1 when ``coherence`` is None), and beyond the near-field reach
+    ``sqrt(near A_j)`` of every disk in it (which also keeps them outside its bounding
+    sphere). The squared distance is rounded up to the next float32 so the float32
+    comparison never accepts a node closer than this.
     """
     nodes = np.zeros((tree.n_nodes, _k.NODE_COLS), dtype=np.float32)
     g = tree.geometry
     b = g[:, 3]
     reach = b + np.sqrt(near * g[:, 5]) if near > 0 else b
     with np.errstate(over="ignore", invalid="ignore", under="ignore"):
-        open_d2 = np.maximum(theta * np.maximum(g[:, 4], math.pi * b**2), reach**2)
+        size = np.maximum(g[:, 4], math.pi * b**2)
+        if coherence is not None:
+            size = size * (1.0 + OPEN_COHERENCE * (1.0 - np.asarray(coherence, dtype=np.float64)))
+        open_d2 = np.maximum(theta * size, reach**2)
         open_d2 = np.where(np.isnan(open_d2), np.inf, open_d2)
         open32 = open_d2.astype(np.float32)
         open32 = np.where(open32 < open_d2, np.nextafter(open32, np.float32(np.inf)), open32)

@@ -1201,3 +1201,49 @@ def test_shared_passes_follow_the_full_ones():
         assert np.sqrt(np.mean((shared - full) ** 2)) < 0.5 * correction
     extra = slice(-3, None)  # small_scene's flipped copy's no-normal and isolated vertices
     np.testing.assert_allclose(shared[extra], full[extra], rtol=0, atol=1e-3)
+
+
+def test_node_coherence_matches_direct_sums():
+    """|sum A m| / sum A per node, against a loop over each node's disks: 1 on a flat
+    patch, ~0 for the root of two facing plates (their normals cancel)."""
+    s = facing_plates(cells=6)
+    e = B.build_elements(s)
+    t = B.build_tree(e, leaf_size=4)
+    c = H.node_coherence(t, e.normals, e.areas)
+    for q in range(t.n_nodes):
+        members = t.order[t.start[q] : t.stop[q]]
+        a = e.areas[members]
+        expect = np.linalg.norm((e.normals[members] * a[:, None]).sum(axis=0)) / a.sum()
+        assert c[q] == pytest.approx(expect, abs=1e-12)
+    assert c[0] < 1e-9  # the root holds both plates
+    flat = [q for q in range(t.n_nodes) if np.ptp(e.positions[t.order[t.start[q] : t.stop[q]], 2]) == 0]
+    assert len(flat) >= 4
+    assert np.all(c[flat] > 1 - 1e-12)  # one plate: every normal equal
+
+
+def test_packed_nodes_open_incoherent_nodes_sooner():
+    """The opening distance grows by 1 + OPEN_COHERENCE (1 - c) where theta decides it."""
+    s = facing_plates(cells=6)
+    e = B.build_elements(s)
+    t = B.build_tree(e, leaf_size=4)
+    c = H.node_coherence(t, e.normals, e.areas)
+    plain = H.pack_nodes(t, theta=2.0, near=0.0)[:, KH.N_OPEN_D2].astype(np.float64)
+    opened = H.pack_nodes(t, theta=2.0, near=0.0, coherence=c)[:, KH.N_OPEN_D2].astype(np.float64)
+    ratio = 1.0 + H.OPEN_COHERENCE * (1.0 - c)
+    np.testing.assert_allclose(opened, plain * ratio, rtol=1e-6)
+    assert ratio.max() > 3.0  # some node mixes the two plates
+
+
+def test_tree_error_on_facing_plates_shrinks_with_coherent_opening(monkeypatch):
+    """Against the exact sum at theta 2: a node holding both plates has its centre in the
+    gap between them and is a poor point emitter; opening such nodes sooner cuts the
+    tree's error (measured 0.014 -> 0.0005 RMSE on this scene)."""
+    s = facing_plates(cells=24, gap=0.5)
+    e = B.build_elements(s)
+    t = B.build_tree(e)
+    exact = B.occlusion_passes(e, None)[0]
+    tree = B.occlusion_passes(e, t, theta=2.0)[0]
+    assert np.sqrt(np.mean((tree - exact) ** 2)) < 0.003
+    monkeypatch.setattr(H, "OPEN_COHERENCE", 0.0)  # the published criterion
+    published = B.occlusion_passes(e, t, theta=2.0)[0]
+    assert np.sqrt(np.mean((published - exact) ** 2)) > 0.01
