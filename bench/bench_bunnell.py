@@ -38,6 +38,7 @@ sys.path.insert(0, str(HERE))
 sys.path.insert(0, str(HERE.parent / "tests"))
 
 from aobake import bunnell as B  # noqa: E402
+from aobake import hierarchy as H  # noqa: E402
 from aobake.hybrid import hybrid_ao  # noqa: E402
 from aobake.kernels import bunnell as K  # noqa: E402
 from aobake.raytrace import embree_ao  # noqa: E402
@@ -92,6 +93,21 @@ def run(fn, repeats):
     return best
 
 
+def published_opening(**kw):
+    """bunnell_ao with the published opening criterion (``OPEN_COHERENCE = 0``: clusters
+    whose normals disagree open no sooner than flat ones), for comparison."""
+
+    def bake(surface):
+        saved = H.OPEN_COHERENCE
+        H.OPEN_COHERENCE = 0.0
+        try:
+            return B.bunnell_ao(surface, **kw)
+        finally:
+            H.OPEN_COHERENCE = saved
+
+    return bake
+
+
 def variants(n_vertices: int):
     """(label, callable(surface) -> ao, passes) of every row of the accuracy table."""
     big = n_vertices > 50_000
@@ -105,6 +121,7 @@ def variants(n_vertices: int):
     if not big:
         rows.append(("default, exact sum (no tree)", dict(exact=True)))
     rows += [
+        ("saturation, theta 1.5", dict(theta=1.5)),
         ("saturation, theta 3", dict(theta=3.0)),
         ("saturation, theta 4", dict(theta=4.0)),
         ("saturation, theta 8", dict(theta=8.0)),
@@ -133,6 +150,8 @@ def variants(n_vertices: int):
         ("published, passes 2, bunnell blend", dict(near=0.0, sides="front", passes=2, pass_reach=np.inf, gate=0.0, combine="bunnell", **plain)),
     ]
     out = [(label, (lambda s, kw=kw: B.bunnell_ao(s, **kw)), kw.get("passes", 1)) for label, kw in rows]
+    out.insert(4, ("default, published opening (OPEN_COHERENCE 0)", published_opening(), 1))
+    out.insert(5, ("passes 2, published opening", published_opening(passes=2), 2))
     out += [
         ("hybrid: 16 rays, reach 4, sum", lambda s: hybrid_ao(s).ao, 1),
         ("hybrid: 16 rays, reach 4, product", lambda s: hybrid_ao(s, combine="product").ao, 1),
@@ -265,7 +284,9 @@ def contenders(surface):
             surface, directional=False, theta=B.PLAIN_THETA),
         "bunnell --no-directional --theta 4 --passes 2": lambda: B.bunnell_ao(
             surface, directional=False, theta=B.PLAIN_THETA, passes=2),
+        "bunnell default, published opening (OPEN_COHERENCE 0)": lambda: published_opening()(surface),
         "bunnell default (saturation, theta 2)": lambda: B.bunnell_ao(surface),
+        "bunnell --theta 1.5": lambda: B.bunnell_ao(surface, theta=1.5),
         "bunnell --theta 4": lambda: B.bunnell_ao(surface, theta=4.0),
         "hybrid (16 rays, reach 4)": lambda: hybrid_ao(surface).ao,
         "embree 16 rays": lambda: embree_ao(surface, n_rays=16, seed=1).ao,
