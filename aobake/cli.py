@@ -21,6 +21,12 @@ class AobakeGroup(click.Group):
     """Turns :class:`AobakeError` into ``Error: <file>: <problem>`` and exit code 1."""
 
     def invoke(self, ctx):
+        import threading
+
+        from .progress import install_interrupt_handler
+
+        if threading.current_thread() is threading.main_thread():
+            install_interrupt_handler()  # Ctrl-C during numba compilation is not lost
         try:
             return super().invoke(ctx)
         except AobakeError as exc:

@@ -1,14 +1,57 @@
 """Progress reporting: library code calls ``progress.advance(n)``; the CLI picks the bar.
 
 A bar is drawn on stderr only when stderr is a terminal and ``--quiet`` is off, so logs
-and CI output stay clean. Imports only the standard library.
+and CI output stay clean. ``advance`` is also where an interrupt that was swallowed is
+raised again (:func:`install_interrupt_handler`). Imports only the standard library.
 """
 
 from __future__ import annotations
 
+import signal
 import sys
 import time
 from typing import Protocol, TextIO
+
+_interrupted = False
+
+
+def _on_sigint(signum, frame):
+    global _interrupted
+    _interrupted = True
+    raise KeyboardInterrupt
+
+
+def install_interrupt_handler() -> None:
+    """Ctrl-C raises KeyboardInterrupt as usual and is also remembered, so that every
+    later ``advance`` raises it again. A KeyboardInterrupt raised inside a C callback is
+    printed with a traceback and dropped by Python ("Exception ignored on calling ctypes
+    callback"): numba's compiler calls back into Python, and an aobake interrupted while
+    it compiled kernels (a cold cache) went on to the end. That message is silenced for
+    interrupts (``sys.unraisablehook``). Main thread only (the CLI); library code that
+    never calls this is unaffected."""
+    global _interrupted
+    _interrupted = False
+    signal.signal(signal.SIGINT, _on_sigint)
+    if sys.unraisablehook is not _drop_interrupts:
+        _previous_hook[0] = sys.unraisablehook
+        sys.unraisablehook = _drop_interrupts
+
+
+_previous_hook = [sys.unraisablehook]
+
+
+def _drop_interrupts(unraisable) -> None:
+    """An interrupt dropped in a C callback is remembered (:func:`check_interrupt`), not
+    printed with its traceback; anything else goes to the previous hook."""
+    if isinstance(unraisable.exc_value, KeyboardInterrupt):
+        return
+    _previous_hook[0](unraisable)
+
+
+def check_interrupt() -> None:
+    """Raise KeyboardInterrupt if Ctrl-C came since :func:`install_interrupt_handler`."""
+    if _interrupted:
+        raise KeyboardInterrupt
 
 
 class Progress(Protocol):
@@ -26,7 +69,7 @@ class NullProgress:
         pass
 
     def advance(self, n: int) -> None:
-        pass
+        check_interrupt()
 
     def finish(self) -> None:
         pass
@@ -52,6 +95,7 @@ class StderrProgress:
         self._draw()
 
     def advance(self, n: int) -> None:
+        check_interrupt()
         self.done = min(self.done + int(n), self.total)
         now = time.perf_counter()
         if now - self._last >= 0.1 or self.done == self.total:

@@ -135,6 +135,42 @@ def test_interrupt_leaves_no_output(tmp_path, command):
     assert leftovers == ["big.ply"]
 
 
+def test_swallowed_interrupt_is_raised_again_at_the_next_advance():
+    """Python drops a KeyboardInterrupt raised inside a C callback (numba's compiler is
+    one): the CLI's handler remembers Ctrl-C, and the next progress step raises it."""
+    from aobake import progress as P
+
+    try:
+        P.install_interrupt_handler()
+        assert signal.getsignal(signal.SIGINT) is P._on_sigint
+        P.NullProgress().advance(1)  # nothing pending
+        try:
+            P._on_sigint(signal.SIGINT, None)
+        except KeyboardInterrupt:
+            pass  # dropped, as "Exception ignored on calling ctypes callback" drops it
+        with open(os.devnull, "w") as sink:
+            for progress in (P.NullProgress(), P.StderrProgress(stream=sink)):
+                with pytest.raises(KeyboardInterrupt):
+                    progress.advance(1)
+        P.install_interrupt_handler()  # a new command starts clean
+        P.NullProgress().advance(1)
+
+        class Dropped:  # what Python hands sys.unraisablehook
+            exc_value = KeyboardInterrupt()
+
+        seen = []
+        P._previous_hook[0] = seen.append
+        sys.unraisablehook(Dropped)  # silent: remembered by the handler instead
+        other = type("Other", (), {"exc_value": ValueError("x")})
+        sys.unraisablehook(other)
+        assert seen == [other]  # anything else still reaches the previous hook
+    finally:
+        P._previous_hook[0] = sys.__unraisablehook__
+        sys.unraisablehook = sys.__unraisablehook__
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+        P._interrupted = False
+
+
 def test_compare_refuses_npy_of_wrong_shape(tmp_path):
     np.save(tmp_path / "a.npy", np.zeros((3, 2)))
     result = CliRunner().invoke(main, ["compare", str(tmp_path / "a.npy"), str(tmp_path / "a.npy")])
