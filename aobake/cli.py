@@ -31,6 +31,14 @@ class AobakeGroup(click.Group):
             return super().invoke(ctx)
         except AobakeError as exc:
             raise click.ClickException(str(exc)) from None
+        except Exception:
+            from . import progress
+
+            # after a Ctrl-C that Python dropped (progress.install_interrupt_handler),
+            # numba may fail in its own way (a half-compiled library): that is the abort
+            if progress.interrupted():
+                raise click.Abort() from None
+            raise
 
 
 class FieldSpec(click.ParamType):

@@ -48,6 +48,11 @@ def _drop_interrupts(unraisable) -> None:
     _previous_hook[0](unraisable)
 
 
+def interrupted() -> bool:
+    """Whether Ctrl-C came since :func:`install_interrupt_handler`."""
+    return _interrupted
+
+
 def check_interrupt() -> None:
     """Raise KeyboardInterrupt if Ctrl-C came since :func:`install_interrupt_handler`."""
     if _interrupted:

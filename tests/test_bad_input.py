@@ -171,6 +171,37 @@ def test_swallowed_interrupt_is_raised_again_at_the_next_advance():
         P._interrupted = False
 
 
+def test_failure_after_a_dropped_interrupt_is_an_abort(tmp_path, monkeypatch):
+    """numba, interrupted inside its compiler's callback, can fail later in its own way
+    ("no compiled object yet"): after a Ctrl-C that is an abort (exit 1, one line), and
+    without one the error is not hidden."""
+    import aobake.pipeline
+    from aobake import progress as P
+
+    src = tmp_path / "m.ply"
+    trimesh.creation.icosphere(subdivisions=1).export(src)
+
+    def broken(*args, **kwargs):
+        if dropped:
+            P._interrupted = True  # what the handler records before Python drops the raise
+        raise RuntimeError("no compiled object yet")
+
+    monkeypatch.setattr(aobake.pipeline, "bake_file", broken)
+    try:
+        dropped = True
+        result = CliRunner().invoke(main, ["bake", str(src), "-o", str(tmp_path / "o.ply")])
+        assert result.exit_code == 1
+        assert result.output.strip() == "Aborted!"
+        assert not (tmp_path / "o.ply").exists()
+        dropped = False
+        result = CliRunner().invoke(main, ["bake", str(src), "-o", str(tmp_path / "o.ply")])
+        assert isinstance(result.exception, RuntimeError)
+    finally:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+        sys.unraisablehook = sys.__unraisablehook__
+        P._interrupted = False
+
+
 def test_compare_refuses_npy_of_wrong_shape(tmp_path):
     np.save(tmp_path / "a.npy", np.zeros((3, 2)))
     result = CliRunner().invoke(main, ["compare", str(tmp_path / "a.npy"), str(tmp_path / "a.npy")])
