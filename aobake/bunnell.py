@@ -729,8 +729,8 @@ def bunnell_ao(
         ``max(A, pi b^2)`` is Bunnell's and Hoberock's ``d^2 >= eps A`` for compact
         clusters and keeps long thin clusters (A << b^2) from being merged too close;
         ``c = |sum A m| / sum A`` (:func:`aobake.hierarchy.node_coherence`) opens
-        clusters whose normals disagree (facing plates, both sides of a ball) sooner. Larger = more accurate and slower;
-        theta -> inf is the exact sum.
+        clusters whose normals disagree (facing plates, both sides of a ball) sooner.
+        Larger = more accurate and slower; theta -> inf is the exact sum.
     near : float, optional
         Near-field factor >= 0: disks with ``r^2 < near A_j`` are replaced by their cells
         (0: disks only, the published method).

@@ -99,10 +99,12 @@ TREE_BUILD_STACK = 128
 # normals disagree is a poor point emitter (one whose disks lie on two facing plates, or on
 # both sides of a ball, has its centre in the empty space between them), so its opening
 # distance grows with the disagreement: open_d2 = theta max(A, pi b^2) (1 + OPEN_COHERENCE
-# (1 - |sum A m| / sum A)). Measured with bench/bench_bunnell.py's scenes at theta 2: 0 (the
+# (1 - |sum A m| / sum A)). Measured at theta 2 (bench/bench_bunnell.py's "published
+# opening" rows for 0; the other factors in one-off runs on the same scenes): 0 (the
 # published criterion) 700k spheres 0.022, 700k bunny scene 0.023, facing plates 0.018
 # (tree against exact sum: 0.014); 1: 0.019, 0.020, plates' tree error 0.004; 3: 0.017,
-# 0.018, plates 0.005 (tree error 0.0005) at 0-10% more time per pass; 6 no better.
+# 0.018, plates 0.005 (tree error 0.0005) at 13% more time per pass (interleaved runs;
+# on the 700k scenes the trade theta 3 makes, on facing surfaces much better); 6 no better.
 OPEN_COHERENCE = 3.0
 
 # Passes >= 2 (aobake.bunnell): an emitter at distance r from a receiver is weighted by its
