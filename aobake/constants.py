@@ -104,7 +104,8 @@ TREE_BUILD_STACK = 128
 # published criterion) 700k spheres 0.022, 700k bunny scene 0.023, facing plates 0.018
 # (tree against exact sum: 0.014); 1: 0.019, 0.020, plates' tree error 0.004; 3: 0.017,
 # 0.018, plates 0.005 (tree error 0.0005) at 13% more time per pass (interleaved runs;
-# on the 700k scenes the trade theta 3 makes, on facing surfaces much better); 6 no better.
+# on the 700k scenes the trade theta 3 makes, on facing surfaces much better); 6 no better
+# on the small scenes.
 OPEN_COHERENCE = 3.0
 
 # Passes >= 2 (aobake.bunnell): an emitter at distance r from a receiver is weighted by its
