@@ -23,17 +23,15 @@ class AobakeGroup(click.Group):
     def invoke(self, ctx):
         import threading
 
-        from .progress import install_interrupt_handler
+        from . import progress
 
         if threading.current_thread() is threading.main_thread():
-            install_interrupt_handler()  # Ctrl-C during numba compilation is not lost
+            progress.install_interrupt_handler()  # Ctrl-C during numba compilation is not lost
         try:
             return super().invoke(ctx)
         except AobakeError as exc:
             raise click.ClickException(str(exc)) from None
         except Exception:
-            from . import progress
-
             # after a Ctrl-C that Python dropped (progress.install_interrupt_handler),
             # numba may fail in its own way (a half-compiled library): that is the abort
             if progress.interrupted():

@@ -13,6 +13,7 @@ import time
 from typing import Protocol, TextIO
 
 _interrupted = False
+_previous_hook = sys.unraisablehook  # what install_interrupt_handler's hook defers to
 
 
 def _on_sigint(signum, frame):
@@ -29,15 +30,12 @@ def install_interrupt_handler() -> None:
     it compiled kernels (a cold cache) went on to the end. That message is silenced for
     interrupts (``sys.unraisablehook``). Main thread only (the CLI); library code that
     never calls this is unaffected."""
-    global _interrupted
+    global _interrupted, _previous_hook
     _interrupted = False
     signal.signal(signal.SIGINT, _on_sigint)
     if sys.unraisablehook is not _drop_interrupts:
-        _previous_hook[0] = sys.unraisablehook
+        _previous_hook = sys.unraisablehook
         sys.unraisablehook = _drop_interrupts
-
-
-_previous_hook = [sys.unraisablehook]
 
 
 def _drop_interrupts(unraisable) -> None:
@@ -45,7 +43,7 @@ def _drop_interrupts(unraisable) -> None:
     printed with its traceback; anything else goes to the previous hook."""
     if isinstance(unraisable.exc_value, KeyboardInterrupt):
         return
-    _previous_hook[0](unraisable)
+    _previous_hook(unraisable)
 
 
 def interrupted() -> bool:

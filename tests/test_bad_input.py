@@ -159,13 +159,13 @@ def test_swallowed_interrupt_is_raised_again_at_the_next_advance():
             exc_value = KeyboardInterrupt()
 
         seen = []
-        P._previous_hook[0] = seen.append
+        P._previous_hook = seen.append
         sys.unraisablehook(Dropped)  # silent: remembered by the handler instead
         other = type("Other", (), {"exc_value": ValueError("x")})
         sys.unraisablehook(other)
         assert seen == [other]  # anything else still reaches the previous hook
     finally:
-        P._previous_hook[0] = sys.__unraisablehook__
+        P._previous_hook = sys.__unraisablehook__
         sys.unraisablehook = sys.__unraisablehook__
         signal.signal(signal.SIGINT, signal.default_int_handler)
         P._interrupted = False
