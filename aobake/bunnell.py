@@ -245,6 +245,7 @@ class _Pass:
             np.ascontiguousarray(inner, dtype=np.float64),
             np.full(elements.n_vertices, 2, dtype=np.uint8),
         )
+        self.no_fill = _no_fill(elements.n_vertices)
         if tree is None:
             return
         import numba
@@ -285,6 +286,7 @@ class _Pass:
         cache_mode: int = 0,
         occluders=None,
         modes=None,
+        fill=None,
     ) -> tuple[FloatArray, FloatArray]:
         """(n, 2, N_BINS) (front, back) sums, cumulative by distance when ``binned``
         (else only the last bin, the total, less the direction excess when directional),
@@ -297,7 +299,9 @@ class _Pass:
         cell weights must not have changed), 0 neither. ``occluders``: (n, 3) occluder
         centroids for gated weights (default: the vertices; unused unless leveled).
         ``modes`` (tree only): (n,) uint8 per receiver, 0 skip (row 0), 1 total only, 2
-        binned when ``binned`` (default: all 2).
+        binned when ``binned`` (default: all 2). ``fill``: ``(store, slot, mode)``, what
+        receivers do with their direction bins for later passes
+        (``kernels.bunnell.brute_force_pass``; default: nothing).
         """
         e = self.elements
         n = e.n_vertices
@@ -311,6 +315,7 @@ class _Pass:
         occluders = np.ascontiguousarray(e.positions if occluders is None else occluders)
         out = np.zeros((n, 2, _k.N_BINS))
         first = np.zeros((n, 4))
+        fill = self.no_fill if fill is None else fill
         if self.tree is None:
             disks = (e.positions, e.normals, e.areas, weights, occluders)
             cells = (e.corner_start, e.corners, cell_weights)
@@ -319,7 +324,7 @@ class _Pass:
             for lo in range(0, n, step):
                 chunk = everyone[lo : lo + step]
                 _k.brute_force_pass(
-                    disks, cells, e.emitter_index, self.receivers, chunk, options, out, first
+                    disks, cells, e.emitter_index, self.receivers, chunk, options, out, first, fill
                 )
                 progress.advance(chunk.shape[0])
             return out, first
@@ -367,9 +372,24 @@ class _Pass:
                 options,
                 out,
                 first,
+                fill,
             )
             progress.advance(int(bucket_start[b1] - bucket_start[b0]))
         return out, first
+
+
+def _no_fill(n: int) -> tuple:
+    """The kernels' ``fill`` argument when no receiver keeps or reads its bins."""
+    return (np.zeros((0, 2, 2 * _k.SECTORS)), np.full(n, -1, dtype=np.int64), _k.FILL_NONE)
+
+
+def _fills(n: int, keepers: IndexArray) -> tuple[tuple, tuple]:
+    """``fill`` arguments for pass 1 (``keepers`` keep their direction bins) and for the
+    later passes (they read them back: ``kernels.bunnell.refill``)."""
+    store = np.zeros((keepers.shape[0], 2, 2 * _k.SECTORS))
+    slot = np.full(n, -1, dtype=np.int64)
+    slot[keepers] = np.arange(keepers.shape[0])
+    return (store, slot, _k.FILL_KEEP), (store, slot, _k.FILL_GIVE)
 
 
 def _non_emitters(n: int, order: IndexArray) -> IndexArray:
@@ -448,6 +468,7 @@ def occlusion_passes(
     pass_reach: float = DEFAULT_PASS_REACH,
     gate: float = PASS_GATE_WIDTH,
     directional: bool = True,
+    pass_fill: bool = True,
     share_passes: bool = True,
     measure: str = "cosine",
     max_distance: float | None = None,
@@ -495,6 +516,14 @@ def occlusion_passes(
         (layers stacked in one direction count once, as far as the bins resolve them);
         the near-field cells are not binned. The distance bins below the total stay
         plain sums. False: the plain sum (as published).
+    pass_fill : bool
+        With ``directional`` and passes >= 2: a later pass removes occlusion from a
+        direction bin only in proportion to how empty pass 1 left it. With v1 and v_k a
+        bin's content in pass 1 and pass k, each capped at the bin's measure c, the bin
+        counts ``v_k + (v1 - v_k) v1 / c`` (``kernels.bunnell.refill``): a bin pass 1
+        filled stays full (that direction is blocked, whatever stands in it; inside an
+        enclosure a disk can be in shadow and in plain view of the receiver), an empty
+        one loses all the pass removes. False: every bin loses it all (``v_k``).
     share_passes : bool
         With a tree and passes >= 2: evaluate passes 2..K at one vertex per leaf and
         normal group only (:func:`pass_representatives`) and carry what they remove
@@ -546,10 +575,15 @@ def occlusion_passes(
             if inner.shape != (n,) or not np.all(inner >= 0.0):
                 raise ValueError(f"inner must be ({n},) and >= 0")
         job = _Pass(elements, tree, theta, near, code, reach, inner, pass_reach, gate, directional)
+        # later passes read pass 1's direction bins at the receivers they evaluate
+        fill = pass_fill and directional and passes > 1
         if share:
-            _shared_passes(job, occlusion, rep_of, evaluated, passes, sides, damping, progress)
+            fills = _fills(n, evaluated) if fill else (None, None)
+            _shared_passes(job, occlusion, rep_of, evaluated, passes, sides, damping, fills,
+                           progress)
         else:
-            _all_passes(job, occlusion, passes, sides, damping, progress)
+            fills = _fills(n, np.arange(n)) if fill else (None, None)
+            _all_passes(job, occlusion, passes, sides, damping, fills, progress)
     progress.finish()
     return occlusion
 
@@ -563,8 +597,9 @@ def _weights_from(sums: FloatArray, sides: str, damping: float) -> FloatArray:
     return weights
 
 
-def _all_passes(job, occlusion, passes, sides, damping, progress) -> None:
-    """Every pass at every vertex (the exact sum's and the reference's way)."""
+def _all_passes(job, occlusion, passes, sides, damping, fills, progress) -> None:
+    """Every pass at every vertex (the exact sum's and the reference's way); ``fills``:
+    the kernels' ``fill`` for pass 1 and for the later passes (:func:`_fills`)."""
     n = occlusion.shape[1]
     weights = np.ones((n, _k.N_LEVELS))
     cell_weights = np.ones(n)
@@ -573,7 +608,8 @@ def _all_passes(job, occlusion, passes, sides, damping, progress) -> None:
         binned = k + 1 < passes  # the next pass needs occlusion by distance
         # cells keep weight 1 in every pass: evaluate them once
         cache_mode = 0 if passes == 1 else (1 if k == 0 else 2)
-        sums, first = job.sums(weights, progress, cell_weights, binned, cache_mode, occluders)
+        sums, first = job.sums(weights, progress, cell_weights, binned, cache_mode, occluders,
+                               fill=fills[min(k, 1)])
         _check_result(sums, "unsaturated occlusion sum", lower=0.0, upper=np.inf)
         if binned and k == 0:
             occluders = occluder_centroids(job.elements, first)
@@ -582,7 +618,8 @@ def _all_passes(job, occlusion, passes, sides, damping, progress) -> None:
             weights = _weights_from(sums, sides, damping)
 
 
-def _shared_passes(job, occlusion, rep_of, evaluated, passes, sides, damping, progress) -> None:
+def _shared_passes(job, occlusion, rep_of, evaluated, passes, sides, damping, fills,
+                   progress) -> None:
     """Pass 1 at every vertex (split by distance: every vertex's own weights); passes
     2..K at the representatives only, walking the tree from the same buckets as pass 1
     (so pass 1 and pass k share their tree approximations there), carried to the
@@ -593,7 +630,7 @@ def _shared_passes(job, occlusion, rep_of, evaluated, passes, sides, damping, pr
     S_k(rep) / S_1(rep) would scale them: measured worse at contacts)."""
     n = occlusion.shape[1]
     ones = np.ones(n)
-    first_sums, first = job.sums(np.ones((n, _k.N_LEVELS)), progress, ones, True, 0)
+    first_sums, first = job.sums(np.ones((n, _k.N_LEVELS)), progress, ones, True, 0, fill=fills[0])
     _check_result(first_sums, "unsaturated occlusion sum", lower=0.0, upper=np.inf)
     base = first_sums[:, :, -1]
     occlusion[0] = np.clip(combine_sides(base, sides), 0.0, 1.0)
@@ -606,7 +643,7 @@ def _shared_passes(job, occlusion, rep_of, evaluated, passes, sides, damping, pr
     modes[evaluated] = 2
     for k in range(1, passes):
         binned = k + 1 < passes
-        sums, _ = job.sums(weights, progress, ones, binned, 0, occluders, modes)
+        sums, _ = job.sums(weights, progress, ones, binned, 0, occluders, modes, fill=fills[1])
         _check_result(sums, "unsaturated occlusion sum", lower=0.0, upper=np.inf)
         shared = sums[rep_of]
         drop = np.maximum(base_rep - shared[:, :, -1], 0.0)  # never above pass 1
@@ -686,6 +723,7 @@ def bunnell_ao(
     pass_reach: float = DEFAULT_PASS_REACH,
     gate: float = PASS_GATE_WIDTH,
     directional: bool = True,
+    pass_fill: bool = True,
     share_passes: bool = True,
     measure: str = "cosine",
     max_distance: float | None = None,
@@ -747,6 +785,9 @@ def bunnell_ao(
     directional : bool, optional
         Per-direction saturation: what direction bins of the receiver's hemisphere hold
         beyond their measure is dropped (:func:`occlusion_passes`). Cosine measure only.
+    pass_fill : bool, optional
+        Later passes remove occlusion from a direction bin in proportion to how empty
+        pass 1 left it (:func:`occlusion_passes`); with ``directional`` only.
     share_passes : bool, optional
         Passes 2..K at one vertex per leaf and normal group (:func:`occlusion_passes`);
         only with ``combine="last"`` (the blends use the second-to-last pass at every
@@ -819,6 +860,7 @@ def bunnell_ao(
         pass_reach=pass_reach,
         gate=gate,
         directional=bool(directional),
+        pass_fill=bool(pass_fill),
         share_passes=bool(share_passes) and combine == "last",
         measure=measure,
         max_distance=max_distance,

@@ -131,6 +131,7 @@ def variants(n_vertices: int):
         ("saturation, theta 4, near 16", dict(theta=4.0, near=16.0)),
         ("passes 2", dict(passes=2)),
         ("passes 2, theta 4", dict(passes=2, theta=4.0)),
+        ("passes 2 without the fill rule (pass_fill off; the previous passes 2)", dict(passes=2, pass_fill=False)),
         ("passes 2, damping 0.25", dict(passes=2, damping=0.25)),
         ("passes 3", dict(passes=3)),
         ("plain: passes 2", dict(passes=2, **plain)),
@@ -208,7 +209,7 @@ def exact_subset(elements, subset, near, directional=True):
     cells = (elements.corner_start, elements.corners, ones)
     first = np.zeros((elements.n_vertices, 4))
     K.brute_force_pass(disks, cells, elements.emitter_index, job.receivers, subset, job.options,
-                       out, first)
+                       out, first, job.no_fill)
     return np.clip(out[:, :, -1].max(axis=1)[subset], 0.0, 1.0)
 
 

@@ -118,7 +118,7 @@ def naive_cell(positions, faces, j, point, normal, measure="cosine"):
 def naive_sums(
     positions, normals, areas, faces, points, weights, measure="cosine", max_distance=None,
     near=0.0, cell_weights=None, radii=None, reach=np.inf, occluders=None, gate=0.0,
-    first=None, sectors=0, plain=None,
+    first=None, sectors=0, plain=None, keep=None, fill=None,
 ):
     """Unsaturated (front, back) sums at every vertex, one receiver at a time.
 
@@ -145,7 +145,10 @@ def naive_sums(
     tangent frame, linearly interpolated, times a near-normal / near-horizon split), and
     each side's total (the last bin with ``radii``) loses ``sum max(bin - 1 / 2S, 0)``;
     other bins and ``first`` stay unsaturated. ``plain`` (n, 2): filled with the totals
-    before that subtraction.
+    before that subtraction. ``keep`` (n, 2, 2 S): filled with every receiver's direction
+    bins. ``fill`` (n, 2, 2 S): pass 1's bins; each bin then gives back
+    ``(v1 - v) v1 / c`` of what this pass removed (v1, v: pass 1's and this pass's
+    content, each capped at the bin's measure c; none when v > v1).
     """
     positions = np.asarray(positions, dtype=np.float64)
     cell_weights = weights if cell_weights is None else cell_weights
@@ -209,8 +212,14 @@ def naive_sums(
         if plain is not None:
             plain[i] = out[i, :, -1]
         if saturate:
-            excess = np.maximum(directions - 1.0 / (2 * sectors), 0.0).sum(axis=1)
+            cap = 1.0 / (2 * sectors)
+            excess = np.maximum(directions - cap, 0.0).sum(axis=1)
             out[i, :, -1] -= excess
+            if keep is not None:
+                keep[i] = directions
+            if fill is not None:
+                v1 = np.minimum(fill[i], cap)
+                out[i, :, -1] += (np.maximum(v1 - np.minimum(directions, cap), 0.0) * v1 / cap).sum(axis=1)
     return out[:, :, 0] if radii is None else out
 
 
@@ -255,7 +264,7 @@ def spread_direction(bins, value, local, r2, sectors):
 
 def naive_bunnell_ao(
     surface: Surface, passes=2, measure="cosine", max_distance=None, combine="last", near=0.0,
-    sides="max", damping=1.0, pass_reach=0.5, gate=0.1, sectors=0,
+    sides="max", damping=1.0, pass_reach=0.5, gate=0.1, sectors=0, pass_fill=True,
 ):
     """Exact (no hierarchy) multi-pass disk AO, straight from the definitions.
 
@@ -266,7 +275,9 @@ def naive_bunnell_ao(
     is); cell weights 1. With ``gate`` > 0 that occlusion only counts in the fraction
     ``clamp(n_i.(o_j - p_i) / (gate r), 0, 1)``, o_j the centroid of pass 1's terms at j
     (``p_j + sum term d / sum term``). ``sectors`` > 0 saturates the sums per direction
-    (:func:`naive_sums`); the centroids use the unsaturated totals.
+    (:func:`naive_sums`); the centroids use the unsaturated totals; with ``pass_fill``
+    the later passes give back part of what they remove from each bin (``fill`` in
+    :func:`naive_sums`).
 
     Returns
     -------
@@ -282,13 +293,14 @@ def naive_bunnell_ao(
     weights = np.ones((len(positions), len(radii) + 1))
     occ = []
     occluders = None
+    bins = np.zeros((len(positions), 2, 2 * max(sectors, 1)))
     for k in range(passes):
         first = np.zeros((len(positions), 3))
         plain = np.zeros((len(positions), 2))
         sums = naive_sums(
             positions, surface.normals, areas, surface.faces, points, weights, measure, reach,
             near, np.ones(len(positions)), radii, pass_reach, occluders, gate, first,
-            sectors, plain,
+            sectors, plain, bins if k == 0 else None, bins if k > 0 and pass_fill else None,
         )
         if k == 0:
             total = plain[:, 0] + plain[:, 1]
@@ -428,6 +440,16 @@ def touching_spheres(subdivisions=2) -> Surface:
 def facing_plates(cells=12, gap=0.5) -> Surface:
     """Two parallel 2 x 2 plates a gap apart, front faces toward each other."""
     return combine_meshes(grid(cells, 1.0, -gap / 2, up=True), grid(cells, 1.0, gap / 2, up=False))
+
+
+def spheres_in_block(subdivisions=4, cells=41) -> Surface:
+    """bench/common.py's crevice scene: four unit balls in a 2 x 2 block, 0.1 apart, on a
+    ground grid of half-width 3.2 (one sunk 0.02 into it)."""
+    balls = [
+        icosphere(subdivisions, 1.0, (x, y, 1.0 - (0.02 if k == 3 else 0.0)))
+        for k, (x, y) in enumerate([(-1.05, -1.05), (1.05, -1.05), (-1.05, 1.05), (1.05, 1.05)])
+    ]
+    return combine_meshes(grid(cells, 3.2, 0.0), *balls)
 
 
 def voxel_surface(filled: np.ndarray, cells: int = 3) -> Surface:

@@ -244,8 +244,38 @@ def direction_excess(dirs, side):
     return e
 
 
+# what a receiver does with its direction bins for later passes (``fill`` arguments)
+FILL_NONE = 0  # nothing
+FILL_KEEP = 1  # pass 1: keep them (store row slot[i])
+FILL_GIVE = 2  # a later pass: give back part of what it removes (:func:`refill`)
+
+
+@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+def keep_bins(dirs, store, row):
+    """Pass 1: a receiver's direction bins, both sides, into ``store[row]``."""
+    for side in range(2):
+        for k in range(2 * SECTORS):
+            store[row, side, k] = dirs[side, k]
+
+
+@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+def refill(dirs, store, row, side):
+    """What a later pass gives back on ``side``: ``sum_k (v1_k - v_k) v1_k / cap`` with
+    ``v = min(bin, cap)`` (cap = one bin's measure), v1 from pass 1 (``store[row]``), v
+    this pass's. A later pass removes a bin's occlusion in proportion to how empty pass 1
+    left the bin: a full bin stays full (that direction is blocked, whatever stands in
+    it), a nearly empty one loses all the pass removes (its layers may hide each other)."""
+    cap = 0.5 / SECTORS
+    e = 0.0
+    for k in range(2 * SECTORS):
+        v1 = min(store[row, side, k], cap)
+        e += max(v1 - min(dirs[side, k], cap), 0.0) * (v1 / cap)
+    return e
+
+
 @njit(cache=True, fastmath=FASTMATH, error_model="numpy", parallel=True)
-def brute_force_pass(disks, cells, emitter_index, receivers, receiver_index, options, out, first):
+def brute_force_pass(disks, cells, emitter_index, receivers, receiver_index, options, out, first,
+                     fill):
     """Exact O(n k) sums ``out[i] = (front, back)`` for every ``i`` in receiver_index.
 
     Disk ``j`` at distance r adds ``disk_term(.., w A |cos_e|, ..)`` to ``front`` when
@@ -292,9 +322,15 @@ def brute_force_pass(disks, cells, emitter_index, receivers, receiver_index, opt
         When ``binned``: ``sum (front + back term) (c - p)`` over every emitter, and
         ``sum (front + back term)`` (no excess removed), whose ratio locates the centroid
         of what occludes the receiver (the next pass's occluders); untouched otherwise.
+    fill : tuple
+        ``(store (m, 2, 2 SECTORS) float64, slot (n,) int64, mode)``: with per-direction
+        saturation, receiver i with ``slot[i] >= 0`` keeps its direction bins in
+        ``store[slot[i]]`` (mode FILL_KEEP: pass 1) or gets :func:`refill` back on each
+        side's total (FILL_GIVE: a later pass); FILL_NONE: neither.
     """
     positions, normals, areas, weights, occluders = disks
     corner_start, corners, cell_weights = cells
+    store, slot, fill_mode = fill
     points, r_normals, inner, _ = receivers
     measure, max_distance, near, binned, bin_r2, weight_r2, leveled, gate, directional = options
     gate = gate if leveled else 0.0  # gated weights are a later pass's (as in the tree)
@@ -375,8 +411,12 @@ def brute_force_pass(disks, cells, emitter_index, receivers, receiver_index, opt
         if binned:
             first[i, 3] = out[i, 0, last] + out[i, 1, last]
         if binning:
+            row = slot[i] if fill_mode != FILL_NONE else -1
+            if row >= 0 and fill_mode == FILL_KEEP:
+                keep_bins(dirs, store, row)
             for side in range(2):
-                out[i, side, last] = max(out[i, side, last] - direction_excess(dirs, side), 0.0)
+                back = refill(dirs, store, row, side) if row >= 0 and fill_mode == FILL_GIVE else 0.0
+                out[i, side, last] = max(out[i, side, last] - direction_excess(dirs, side) + back, 0.0)
 
 
 @njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")

@@ -14,6 +14,9 @@ from numba import njit, prange
 from aobake.constants import COINCIDENT_REL, FASTMATH
 
 from .bunnell import (
+    FILL_GIVE,
+    FILL_KEEP,
+    FILL_NONE,
     HALF32,
     N_BINS,
     N_LEVELS,
@@ -27,7 +30,9 @@ from .bunnell import (
     disk_pair32,
     is_near,
     is_wide,
+    keep_bins,
     level_of,
+    refill,
     sector_coords,
 )
 from .hierarchy import (
@@ -775,7 +780,8 @@ def add_cumulative(acc, f, b, r2, br2, binned):
 
 
 @njit(cache=True, fastmath=FASTMATH, error_model="numpy", parallel=True)
-def hierarchy_pass(tree, emitters, receivers, near_field, buckets, span, options, out, first):
+def hierarchy_pass(tree, emitters, receivers, near_field, buckets, span, options, out, first,
+                   fill):
     """Tree sums for the receivers of buckets ``span[0]:span[1]``: like
     ``bunnell.brute_force_pass``, far clusters count as one emitter.
 
@@ -832,6 +838,9 @@ def hierarchy_pass(tree, emitters, receivers, near_field, buckets, span, options
         less the direction excess); each receiver writes its own row.
     first : (n, 4) float64
         When ``binned`` and ``cache_mode != 2``: as in ``bunnell.brute_force_pass``.
+    fill : tuple
+        ``(store, slot, mode)`` as in ``bunnell.brute_force_pass``; a receiver with a slot
+        bins by direction even where its sums could not overflow a bin.
     """
     positions, cell_weights, corner_start, corners, reach, cache, cache_mode = near_field
     index = emitters[1]
@@ -845,6 +854,7 @@ def hierarchy_pass(tree, emitters, receivers, near_field, buckets, span, options
     br2 = bin_r2.astype(np.float32)
     last = bin_r2.shape[0] - 1
     cap = 0.5 / SECTORS  # one direction bin's measure
+    store, slot, fill_mode = fill
     # numba gives each thread one contiguous share of the range, and a bucket's cost
     # follows the geometry: each thread takes every T-th block of SCHEDULE_BLOCK
     # neighbouring buckets instead (cyclic), so every share samples the whole span
@@ -919,7 +929,8 @@ def hierarchy_pass(tree, emitters, receivers, near_field, buckets, span, options
                     )
                     acc[0, last] = np.float64(f1) + np.float64(f2)
                     acc[1, last] = np.float64(b1_) + np.float64(b2)
-                if can_bin and not binning and max(acc[0, last], acc[1, last]) > cap:
+                row = slot[i] if fill_mode != FILL_NONE else -1  # keeps or reads its bins
+                if can_bin and not binning and (max(acc[0, last], acc[1, last]) > cap or row >= 0):
                     binning = True
                     direction_sums(nb, n_near, fb, n_far, px32, py32, pz32, nx32, ny32, nz32, frame,
                                    max_d2, np.float32(min_d2), wr2, leveled, gate_, dirs)
@@ -987,6 +998,11 @@ def hierarchy_pass(tree, emitters, receivers, near_field, buckets, span, options
                 if binning:
                     acc[0, last] -= direction_excess(dirs, 0)
                     acc[1, last] -= direction_excess(dirs, 1)
+                    if row >= 0 and fill_mode == FILL_KEEP:
+                        keep_bins(dirs, store, row)
+                    elif row >= 0 and fill_mode == FILL_GIVE:
+                        acc[0, last] += refill(dirs, store, row, 0)
+                        acc[1, last] += refill(dirs, store, row, 1)
                 for k in range(last + 1):
                     # the swap can leave -1 ulp where the sum is 0
                     out[i, 0, k] = max(acc[0, k], 0.0)
