@@ -1,6 +1,7 @@
 """Benchmark of the disk method (aobake.bunnell) and the hybrid (aobake.hybrid).
 
-Prints Markdown tables measured in one run (not a test; no assertions):
+Prints Markdown tables measured in one run (not a test; the only assertion checks that
+the split timing of one pass reproduces ``occlusion_passes``):
 
 1. accuracy: for the bundled meshes (data/*.ply), four hard procedural scenes and the
    ~700k-vertex scene of bench/common.py: RMSE / p99 / bias of ``ao`` against Embree
