@@ -576,13 +576,12 @@ def occlusion_passes(
                 raise ValueError(f"inner must be ({n},) and >= 0")
         job = _Pass(elements, tree, theta, near, code, reach, inner, pass_reach, gate, directional)
         # later passes read pass 1's direction bins at the receivers they evaluate
-        fill = pass_fill and directional and passes > 1
+        keepers = evaluated if share else np.arange(n)
+        fills = _fills(n, keepers) if pass_fill and directional and passes > 1 else (None, None)
         if share:
-            fills = _fills(n, evaluated) if fill else (None, None)
             _shared_passes(job, occlusion, rep_of, evaluated, passes, sides, damping, fills,
                            progress)
         else:
-            fills = _fills(n, np.arange(n)) if fill else (None, None)
             _all_passes(job, occlusion, passes, sides, damping, fills, progress)
     progress.finish()
     return occlusion

@@ -244,8 +244,9 @@ def direction_excess(dirs, side):
     return e
 
 
-# what a receiver does with its direction bins for later passes (``fill`` arguments)
-FILL_NONE = 0  # nothing
+# what a receiver with a slot (``fill`` arguments: slot[i] >= 0) does with its direction
+# bins for later passes; receivers without one (slot -1) do nothing
+FILL_NONE = 0  # no receiver has a slot
 FILL_KEEP = 1  # pass 1: keep them (store row slot[i])
 FILL_GIVE = 2  # a later pass: give back part of what it removes (:func:`refill`)
 
@@ -271,6 +272,20 @@ def refill(dirs, store, row, side):
         v1 = min(store[row, side, k], cap)
         e += max(v1 - min(dirs[side, k], cap), 0.0) * (v1 / cap)
     return e
+
+
+@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+def settle_fill(dirs, store, row, mode):
+    """What a binned receiver does with its direction bins for later passes (both kernels):
+    ``(front, back)`` to add to its totals. Row ``row`` of ``store`` (-1: none): pass 1
+    (FILL_KEEP) keeps its bins there and adds nothing; a later pass (FILL_GIVE) gets
+    :func:`refill` back on each side."""
+    if row < 0:
+        return 0.0, 0.0
+    if mode == FILL_KEEP:
+        keep_bins(dirs, store, row)
+        return 0.0, 0.0
+    return refill(dirs, store, row, 0), refill(dirs, store, row, 1)
 
 
 @njit(cache=True, fastmath=FASTMATH, error_model="numpy", parallel=True)
@@ -326,7 +341,8 @@ def brute_force_pass(disks, cells, emitter_index, receivers, receiver_index, opt
         ``(store (m, 2, 2 SECTORS) float64, slot (n,) int64, mode)``: with per-direction
         saturation, receiver i with ``slot[i] >= 0`` keeps its direction bins in
         ``store[slot[i]]`` (mode FILL_KEEP: pass 1) or gets :func:`refill` back on each
-        side's total (FILL_GIVE: a later pass); FILL_NONE: neither.
+        side's total (FILL_GIVE: a later pass); :func:`settle_fill`. Slots of -1 (and
+        FILL_NONE, when every slot is -1): neither.
     """
     positions, normals, areas, weights, occluders = disks
     corner_start, corners, cell_weights = cells
@@ -411,12 +427,11 @@ def brute_force_pass(disks, cells, emitter_index, receivers, receiver_index, opt
         if binned:
             first[i, 3] = out[i, 0, last] + out[i, 1, last]
         if binning:
-            row = slot[i] if fill_mode != FILL_NONE else -1
-            if row >= 0 and fill_mode == FILL_KEEP:
-                keep_bins(dirs, store, row)
+            given = settle_fill(dirs, store, slot[i], fill_mode)
             for side in range(2):
-                back = refill(dirs, store, row, side) if row >= 0 and fill_mode == FILL_GIVE else 0.0
-                out[i, side, last] = max(out[i, side, last] - direction_excess(dirs, side) + back, 0.0)
+                out[i, side, last] = max(
+                    out[i, side, last] - direction_excess(dirs, side) + given[side], 0.0
+                )
 
 
 @njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")

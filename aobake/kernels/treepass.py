@@ -14,9 +14,6 @@ from numba import njit, prange
 from aobake.constants import COINCIDENT_REL, FASTMATH
 
 from .bunnell import (
-    FILL_GIVE,
-    FILL_KEEP,
-    FILL_NONE,
     HALF32,
     N_BINS,
     N_LEVELS,
@@ -30,10 +27,9 @@ from .bunnell import (
     disk_pair32,
     is_near,
     is_wide,
-    keep_bins,
     level_of,
-    refill,
     sector_coords,
+    settle_fill,
 )
 from .hierarchy import (
     E_AREA,
@@ -929,7 +925,7 @@ def hierarchy_pass(tree, emitters, receivers, near_field, buckets, span, options
                     )
                     acc[0, last] = np.float64(f1) + np.float64(f2)
                     acc[1, last] = np.float64(b1_) + np.float64(b2)
-                row = slot[i] if fill_mode != FILL_NONE else -1  # keeps or reads its bins
+                row = slot[i]  # >= 0: keeps or reads its bins
                 if can_bin and not binning and (max(acc[0, last], acc[1, last]) > cap or row >= 0):
                     binning = True
                     direction_sums(nb, n_near, fb, n_far, px32, py32, pz32, nx32, ny32, nz32, frame,
@@ -998,11 +994,9 @@ def hierarchy_pass(tree, emitters, receivers, near_field, buckets, span, options
                 if binning:
                     acc[0, last] -= direction_excess(dirs, 0)
                     acc[1, last] -= direction_excess(dirs, 1)
-                    if row >= 0 and fill_mode == FILL_KEEP:
-                        keep_bins(dirs, store, row)
-                    elif row >= 0 and fill_mode == FILL_GIVE:
-                        acc[0, last] += refill(dirs, store, row, 0)
-                        acc[1, last] += refill(dirs, store, row, 1)
+                    given = settle_fill(dirs, store, row, fill_mode)
+                    acc[0, last] += given[0]
+                    acc[1, last] += given[1]
                 for k in range(last + 1):
                     # the swap can leave -1 ulp where the sum is 0
                     out[i, 0, k] = max(acc[0, k], 0.0)
