@@ -24,7 +24,7 @@ _LAZY = {
     "bake": "pipeline",
     "bake_file": "pipeline",
     "load_mesh": "readers",
-    "embree_ao": "raytrace",
+    "embree_ao": "methods.embree",
     "write_ply": "io_ply",
     "write_usd": "io_usd",
     "write_bake": "formats",

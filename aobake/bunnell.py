@@ -21,6 +21,7 @@ import numpy as np
 
 from ._types import AOArray, FloatArray, IndexArray
 from .constants import NEAR_OFFSET_REL, PASS_GATE_WIDTH, PASS_RADII
+from .contacts import contact_points
 from .errors import NumericalError
 from .hierarchy import ClusterTree, node_coherence, pack_nodes, refit_tree, tree_keys
 from .hierarchy import build_tree as _build_tree
@@ -30,7 +31,6 @@ from .kernels import polygon as _poly
 from .kernels import treepass as _tp
 from .mesh import Surface
 from .progress import NullProgress, Progress
-from .raytrace import contact_points
 
 __all__ = [
     "ClusterTree",
@@ -108,7 +108,7 @@ class DiskElements:
     points : (n, 3) float64
         Where each vertex receives: ``positions + NEAR_OFFSET_REL sqrt(A) n``, moved to
         the vertex's own side where another shell touches it
-        (:func:`aobake.raytrace.contact_points`).
+        (:func:`aobake.contacts.contact_points`).
     corner_start, corners : int64
         Triangles around each vertex (``aobake.kernels.polygon.cell_corners``).
     origin : (3,) float64
@@ -176,7 +176,7 @@ def _build_elements(surface: Surface) -> DiskElements:
     # Receivers sit a tiny lift above their vertex, placed like the reference's ray
     # origins: where another shell touches the vertex (a sphere resting on a floor
     # vertex) or the vertex is sunk into it, the lift along n would cross that surface
-    # and the receiver would read open; raytrace.contact_points keeps it on the vertex's
+    # and the receiver would read open; contacts.contact_points keeps it on the vertex's
     # own side. In normalised coordinates, so its float32 probe rounds alike at any scale.
     normalised = dataclasses.replace(surface, positions=local)
     points, _ = contact_points(normalised, local, np.zeros(3), NEAR_OFFSET_REL * np.sqrt(areas))

@@ -95,15 +95,14 @@ def main():
 METHOD_OPTIONS = {
     "embree": ("n_rays", "measure", "max_distance", "bias", "seed", "tolerance", "threads"),
     "bunnell": ("measure", "max_distance", "passes", "theta", "near", "directional", "threads"),
-    "hybrid": ("n_rays", "measure", "max_distance", "bias", "seed", "theta", "reach", "threads"),
 }
 FLAGS = {"n_rays": "--rays"}
 
 
 def _method_options(method: str, **given) -> dict:
     """The options ``method`` takes; a usage error for one set on the command line that it
-    does not take. Options left at a default of None (and hybrid's --rays, whose CLI
-    default is embree's) are not passed, so the library's defaults apply."""
+    does not take. Options left at a default of None are not passed, so the library's
+    defaults apply."""
     ctx = click.get_current_context()
     source = {"n_rays": "rays"}
     wanted = METHOD_OPTIONS[method]
@@ -118,7 +117,7 @@ def _method_options(method: str, **given) -> dict:
                 flag = FLAGS.get(name, "--" + name.replace("_", "-"))
                 raise click.UsageError(f"{flag} does not apply to --method {method}")
             continue
-        if value is None or (method == "hybrid" and name == "n_rays" and not explicit):
+        if value is None:
             continue
         out[name] = value
     return out
@@ -136,11 +135,10 @@ def _method_options(method: str, **given) -> dict:
 )
 @click.option(
     "--method",
-    type=click.Choice(["embree", "bunnell", "hybrid"]),
+    type=click.Choice(["embree", "bunnell"]),
     default="embree",
     show_default=True,
-    help="embree: ray casting (the reference); bunnell: disk and polygon form factors, no "
-    "rays; hybrid: short rays near each vertex, disks beyond.",
+    help="embree: ray casting (the reference); bunnell: disk and polygon form factors, no rays.",
 )
 @click.option("--rays", type=click.IntRange(min=1), default=256, show_default=True, help="Rays per vertex (max).")
 @click.option(
@@ -172,8 +170,7 @@ def _method_options(method: str, **given) -> dict:
     "--theta",
     type=click.FloatRange(min=0, min_open=True),
     default=None,
-    help="bunnell, hybrid: opening parameter of the disk tree (larger = slower, more exact) "
-    "[default: 2 for bunnell, 4 for hybrid].",
+    help="bunnell: opening parameter of the disk tree (larger = slower, more exact) [default: 2].",
 )
 @click.option(
     "--near",
@@ -186,12 +183,6 @@ def _method_options(method: str, **given) -> dict:
     default=None,
     help="bunnell: per-direction saturation, layers stacked in one direction count once "
     "[default: on; off = the plain sum].",
-)
-@click.option(
-    "--reach",
-    type=click.FloatRange(min=0, min_open=True),
-    default=None,
-    help="hybrid: ray length in local edge lengths [default: 4]; --rays defaults to 16.",
 )
 @click.option("--color", is_flag=True, help="Also write ao as grey vertex colours.")
 @click.option(
@@ -214,7 +205,7 @@ def _method_options(method: str, **given) -> dict:
 )
 @common_options
 def bake(
-    mesh, output, method, rays, measure, max_distance, bias, tolerance, passes, theta, near, directional, reach,
+    mesh, output, method, rays, measure, max_distance, bias, tolerance, passes, theta, near, directional,
     color, up, meters_per_unit, fields, seed, threads, quiet
 ):
     """Bake AO of MESH into OUTPUT as the per-vertex attribute `ao`.
@@ -238,7 +229,7 @@ def bake(
         **_method_options(
             method, n_rays=rays, measure=measure, max_distance=max_distance, bias=bias, seed=seed,
             tolerance=tolerance, passes=passes, theta=theta, near=near, directional=directional,
-            reach=reach, threads=threads,
+            threads=threads,
         ),
     )
     if not quiet:

@@ -14,6 +14,11 @@ FASTMATH = {"nsz", "arcp", "contract", "afn", "reassoc"}
 FLOAT = np.float64
 INDEX = np.int64
 
+# The two measures of occlusion and the codes the kernels take for them.
+MEASURE_COSINE = 0
+MEASURE_UNIFORM = 1
+MEASURE_CODES = {"cosine": MEASURE_COSINE, "uniform": MEASURE_UNIFORM}
+
 # Embree works in float32; this is its unit roundoff.
 EPS32 = float(np.finfo(np.float32).eps)
 
@@ -36,9 +41,6 @@ CONTACT_DEPTH = 0.25
 
 # Unbounded rays: Embree's tfar for "no max distance" (float32-safe, beyond any scene).
 INFINITE_DISTANCE = 1e30
-
-DEFAULT_RAYS = 256
-DEFAULT_SEED = 0
 
 # Adaptive sampling: rays are cast in rounds; every round ends on a power of two so the
 # (0,2)-sequence prefix stays fully stratified. ADAPTIVE_FIRST_ROUND rays before any test.

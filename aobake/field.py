@@ -322,11 +322,11 @@ def _face_tangents(resolution: int) -> FloatArray:
 
 def _embree_samples(positions, faces, geometry, *, n_rays, seed, threads, progress) -> FloatArray:
     """(n, 4) Omega and int V w dw from ``n_rays`` rays per point (see kernels.field)."""
-    from .raytrace import Scene
+    from .tracing import Tracer
 
     anchors, tangents, radii, centre = geometry
-    scene = Scene(positions, faces)
-    shift = np.asarray(centre, dtype=np.float64) - scene.center
+    tracer = Tracer(positions, faces)
+    shift = np.asarray(centre, dtype=np.float64) - tracer.center
     geom = (
         np.ascontiguousarray(anchors, dtype=np.float64),
         np.ascontiguousarray(tangents, dtype=np.float64),
@@ -344,7 +344,7 @@ def _embree_samples(positions, faces, geometry, *, n_rays, seed, threads, progre
         org = np.zeros((k, 3), dtype=np.float32)
         dirs = np.zeros((k, 3), dtype=np.float32)
         _k.footprint_rays(geom, keys, index, n_rays, org, dirs)
-        ids = scene.occluded(org, dirs, 1e30)
+        ids = tracer.occluded(org, dirs)
         _k.accumulate_hits(ids, dirs, n_rays, index, out)
         return index.size
 

@@ -20,9 +20,8 @@ from .constants import DEFAULT_METERS_PER_UNIT, DEFAULT_UP_AXIS
 from .errors import FormatError, NumericalError
 from .io_common import check_output_dir, output_kind
 from .mesh import Surface
+from .methods import METHODS
 from .progress import Progress
-
-METHODS = ("embree", "bunnell", "hybrid")
 
 
 @dataclass(frozen=True)
@@ -90,7 +89,7 @@ def as_surface(mesh: Any) -> Surface:
 
 def _compute(surface: Surface, method: str, options: dict, progress: Progress | None):
     if method == "embree":
-        from .raytrace import embree_ao
+        from .methods.embree import embree_ao
 
         result = embree_ao(surface, progress=progress, **options)
         return result.ao, result.n_rays, result.contacts
@@ -98,11 +97,6 @@ def _compute(surface: Surface, method: str, options: dict, progress: Progress | 
         from .bunnell import bunnell_ao
 
         return bunnell_ao(surface, progress=progress, **options), 0, 0
-    if method == "hybrid":
-        from .hybrid import hybrid_ao
-
-        result = hybrid_ao(surface, progress=progress, **options)
-        return result.ao, result.n_rays, result.contacts
     raise ValueError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
 
 
@@ -113,16 +107,14 @@ def bake(mesh: Any, method: str = "embree", *, progress: Progress | None = None,
     ----------
     mesh : str, Path, trimesh.Trimesh, trimesh.Scene or Surface
         What to bake; a multi-mesh scene is one occluding scene.
-    method : {"embree", "bunnell", "hybrid"}
+    method : {"embree", "bunnell"}
         ``"embree"``: Monte Carlo ray casting (the reference). ``"bunnell"``: summed disk
         and polygon form factors over a cluster tree, no rays
         (:func:`aobake.bunnell.bunnell_ao`: ``passes``, ``theta``, ``near``, ...).
-        ``"hybrid"``: short rays near each vertex, disks beyond
-        (:func:`aobake.hybrid.hybrid_ao`: ``n_rays``, ``reach``, ...).
     progress : Progress, optional
     **options
         Passed to the method, e.g. ``n_rays``, ``measure``, ``max_distance``, ``bias``,
-        ``seed``, ``tolerance``, ``threads`` for :func:`aobake.raytrace.embree_ao`.
+        ``seed``, ``tolerance``, ``threads`` for :func:`aobake.methods.embree.embree_ao`.
 
     Returns
     -------
@@ -328,7 +320,7 @@ def sweep_file(
     if cache.exists():
         reference = np.load(cache, allow_pickle=False)
     else:
-        from .raytrace import embree_ao
+        from .methods.embree import embree_ao
 
         reference = embree_ao(surface, n_rays=reference_rays, seed=seed + 1, threads=threads, progress=progress).ao
         with atomic_write(cache) as tmp:
@@ -527,7 +519,7 @@ def _field_sweep(surface, out_dir, key, up_axis, reference_rays, seed, threads, 
     from .field import field_ao, fit_field
     from .io_common import atomic_write
     from .mesh import surface_from_arrays
-    from .raytrace import embree_ao
+    from .methods.embree import embree_ao
 
     up = 1 if up_axis.upper() == "Y" else 2
     lo, hi = surface.positions.min(axis=0), surface.positions.max(axis=0)

@@ -9,10 +9,9 @@ from __future__ import annotations
 import numpy as np
 
 from ._types import FloatArray
+from .constants import MEASURE_CODES
 from .kernels import rays as _k
 from .kernels import rng as _rng
-
-MEASURES = {"cosine": _k.COSINE, "uniform": _k.UNIFORM}
 
 
 def unit_square_samples(seed: int, vertex: int, n: int, *, stratified: bool = True) -> FloatArray:
@@ -62,7 +61,7 @@ def sample_directions(
     org = np.zeros((k, 3), dtype=np.float32)
     dirs = np.zeros((k, 3), dtype=np.float32)
     origins = np.zeros((n, 3), dtype=np.float32)
-    mode = MEASURES[measure] + (0 if stratified else 2)
+    mode = MEASURE_CODES[measure] + (0 if stratified else 2)
     _k.generate_rays(
         origins, normals, keys, vertex_index, int(start), int(start + n_rays), mode, org, dirs
     )

@@ -24,7 +24,6 @@ EMBREE_RAYS = (4, 16, 64, 256, 1024)
 ADAPTIVE_TOLERANCES = (0.05, 0.02)
 # (passes, theta, per-direction saturation); the last row: plain sums, the old default
 BUNNELL_GRID = ((1, 2.0, True), (1, 4.0, True), (1, 8.0, True), (2, 2.0, True), (1, 4.0, False))
-HYBRID_GRID = ((8, 4.0), (16, 4.0), (32, 8.0))  # (rays, reach in edge lengths)
 FIELD_RESOLUTIONS = (8, 16, 32)
 
 
@@ -66,10 +65,6 @@ def default_grid(methods: Iterable[str]) -> list[tuple[str, str, dict]]:
                 {"passes": k, "theta": th, "directional": d},
             )
             for k, th, d in BUNNELL_GRID
-        ]
-    if "hybrid" in methods:
-        grid += [
-            ("hybrid", f"rays={n} reach={r:g}", {"n_rays": n, "reach": r}) for n, r in HYBRID_GRID
         ]
     return grid
 

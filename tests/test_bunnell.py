@@ -618,7 +618,7 @@ def test_surface_without_casting_disks_is_open():
 
 @pytest.fixture(scope="module")
 def reference_scenes():
-    from aobake.raytrace import embree_ao
+    from aobake.methods.embree import embree_ao
 
     scenes = {
         "sphere on plane": (sphere_on_plane(subdivisions=3, cells=40), 0.03),
@@ -671,7 +671,7 @@ def test_extra_passes_do_not_lighten_crevices():
     plain view. Plain pass 2 weighs that floor down and reads too light there (RMSE
     0.0193 -> 0.0259 against 1024 rays); with the fill rule pass 2 is no worse than pass 1
     (0.0189)."""
-    from aobake.raytrace import embree_ao
+    from aobake.methods.embree import embree_ao
 
     s = spheres_in_block(subdivisions=4, cells=41)
     ref = embree_ao(s, n_rays=1024, seed=0).ao
@@ -1224,7 +1224,6 @@ def test_cli_bunnell_writes_what_the_api_computes(scene_ply, tmp_path, flag):
         (["--method", "embree", "--passes", "2"], "--passes does not apply to --method embree"),
         (["--method", "embree", "--theta", "2"], "--theta does not apply"),
         (["--method", "embree", "--no-directional"], "--directional does not apply"),
-        (["--method", "hybrid", "--near", "2"], "--near does not apply to --method hybrid"),
         (["--method", "bunnell", "--theta", "0"], "Invalid value for '--theta'"),
         (["--method", "bunnell", "--passes", "0"], "Invalid value for '--passes'"),
     ],
@@ -1239,25 +1238,6 @@ def test_cli_rejects_options_of_other_methods(scene_ply, tmp_path, args, message
     assert result.exit_code == 2
     assert message in result.output
     assert not out.exists()
-
-
-def test_cli_help_states_the_library_defaults():
-    from click.testing import CliRunner
-
-    from aobake import hybrid
-    from aobake.cli import main
-
-    text = " ".join(CliRunner().invoke(main, ["bake", "--help"]).output.split())
-    assert (
-        "opening parameter of the disk tree (larger = slower, more exact) "
-        f"[default: {B.DEFAULT_THETA:g} for bunnell, {B.PLAIN_THETA:g} for hybrid]" in text
-    )
-    assert hybrid.hybrid_ao.__kwdefaults__["theta"] == B.PLAIN_THETA
-    assert B.bunnell_ao.__kwdefaults__["directional"] is True
-    assert "[default: on; off = the plain sum]" in text
-    assert f"(0 = disks only) [default: {B.DEFAULT_NEAR:g}]" in text
-    assert f"local edge lengths [default: {hybrid.DEFAULT_REACH:g}]; --rays defaults to {hybrid.DEFAULT_HYBRID_RAYS}" in text
-    assert "occlusion passes [default: 1]" in text
 
 
 @pytest.mark.parametrize("pass_fill", [True, False])

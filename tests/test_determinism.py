@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from aobake.raytrace import embree_ao
+from aobake.methods.embree import EmbreeOptions, embree_ao
+from aobake.methods.embree.estimator import estimate
 
 import shapes
 
@@ -27,8 +28,7 @@ def test_same_seed_same_bits(scene):
 def test_threads_and_chunks_do_not_change_bits(scene, tolerance):
     base = embree_ao(scene, n_rays=128, seed=1, threads=1, tolerance=tolerance)
     for threads, chunk in [(2, 1 << 20), (1, 1000), (2, 777), (3, 64)]:
-        other = embree_ao(
-            scene, n_rays=128, seed=1, threads=threads, chunk_rays=chunk, tolerance=tolerance
-        )
+        options = EmbreeOptions(n_rays=128, seed=1, threads=threads, tolerance=tolerance)
+        other = estimate(scene, options, chunk_rays=chunk)
         np.testing.assert_array_equal(base.ao, other.ao)
         np.testing.assert_array_equal(base.rays, other.rays)

@@ -25,7 +25,7 @@ from aobake.field import (
     surface_centre,
 )
 from aobake.mesh import surface_from_arrays
-from aobake.raytrace import embree_ao
+from aobake.methods.embree import embree_ao
 
 import shapes
 

@@ -12,9 +12,8 @@ from hypothesis import strategies as st
 
 from aobake.bunnell import bunnell_ao
 from aobake.field import field_ao, fit_field, rigid_transform
-from aobake.hybrid import hybrid_ao
 from aobake.mesh import surface_from_arrays
-from aobake.raytrace import embree_ao
+from aobake.methods.embree import embree_ao
 
 import hard_cases
 
@@ -33,7 +32,6 @@ def _icosphere_arrays(radius):
 METHODS = {
     "embree": _embree,
     "bunnell": lambda s: bunnell_ao(s),
-    "hybrid": lambda s: hybrid_ao(s).ao,
 }
 
 

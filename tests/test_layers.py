@@ -1,4 +1,6 @@
-"""Import-direction rules (STYLE.md 3.3), checked in fresh interpreters."""
+"""The architecture as rules: import direction between layers, one room per method, and
+which module may import which heavy library. Checked on the source (AST) and, for the
+light imports, in fresh interpreters."""
 
 from __future__ import annotations
 
@@ -11,15 +13,137 @@ import pytest
 
 PACKAGE = Path(__file__).resolve().parents[1] / "aobake"
 
+# Layer of each module, by the longest matching dotted prefix (relative to aobake).
+# Lower layers never import higher ones.
 LAYERS = {
-    "constants": 0, "errors": 0, "_types": 0,
+    "constants": 0, "errors": 0, "_types": 0, "checks": 0, "options": 0,
     "kernels": 1,
-    "mesh": 2, "sampling": 2, "progress": 2, "io_common": 2, "ply": 2, "readers": 2,
-    "raytrace": 3, "bunnell": 3, "field": 3, "raster": 3, "hierarchy": 3, "hybrid": 3,
-    "io_ply": 4, "io_usd": 4, "formats": 4, "preview": 4,
-    "pipeline": 5, "compare": 5, "sweep": 5,
+    "mesh": 2, "sampling": 2, "progress": 2,
+    "tracing": 3, "contacts": 3,
+    "io_common": 3, "ply": 3, "readers": 3, "io_ply": 3, "io_usd": 3, "formats": 3,
+    "methods": 4, "bunnell": 4, "hierarchy": 4, "field": 4, "raster": 4,
+    "pipeline": 5, "compare": 5, "sweep": 5, "preview": 5,
     "cli": 6, "__main__": 6, "__init__": 6,
 }  # fmt: skip
+
+# Each method's room: modules in one may not import another's.
+ROOMS = ("methods.embree", "methods.bunnell", "methods.fields")
+
+# The only modules that may import these libraries (prefixes).
+OWNERS = {
+    "embreex": ("tracing",),
+    "trimesh": ("readers",),
+}
+
+
+def module_name(path: Path) -> str:
+    """``aobake/methods/embree/options.py`` -> ``methods.embree.options``;
+    ``aobake/methods/__init__.py`` -> ``methods``; ``aobake/__init__.py`` -> ``__init__``."""
+    parts = list(path.relative_to(PACKAGE).with_suffix("").parts)
+    if parts[-1] == "__init__" and len(parts) > 1:
+        parts = parts[:-1]
+    return ".".join(parts)
+
+
+def _exists(dotted: str) -> bool:
+    base = PACKAGE.joinpath(*dotted.split("."))
+    return base.with_suffix(".py").exists() or (base / "__init__.py").exists()
+
+
+def imports(path: Path) -> list[str]:
+    """aobake-internal modules ``path`` imports (relative or absolute, anywhere in it),
+    as dotted names relative to aobake."""
+    own = module_name(path)
+    package = own.split(".") if path.name == "__init__.py" and own != "__init__" else own.split(".")[:-1]
+    if own == "__init__":
+        package = []
+    found = []
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package[: len(package) - (node.level - 1)]
+                if node.module:
+                    found.append(".".join(base + node.module.split(".")))
+                else:
+                    for alias in node.names:
+                        if alias.name == "__version__":
+                            continue  # the version string of the package: no layer
+                        sub = ".".join(base + [alias.name])
+                        found.append(sub if _exists(sub) else ".".join(base) or "__init__")
+            elif node.module and node.module.startswith("aobake."):
+                found.append(node.module[len("aobake.") :])
+            elif node.module == "aobake":
+                found.append("__init__")
+        elif isinstance(node, ast.Import):
+            found += [a.name[len("aobake.") :] for a in node.names if a.name.startswith("aobake.")]
+    return found
+
+
+def layer(name: str) -> int:
+    parts = name.split(".")
+    for k in range(len(parts), 0, -1):
+        key = ".".join(parts[:k])
+        if key in LAYERS:
+            return LAYERS[key]
+    return -1
+
+
+def room(name: str) -> str | None:
+    return next((r for r in ROOMS if name == r or name.startswith(r + ".")), None)
+
+
+SOURCES = sorted(PACKAGE.rglob("*.py"))
+
+
+@pytest.mark.parametrize("path", SOURCES, ids=module_name)
+def test_no_module_imports_a_higher_layer(path):
+    own = layer(module_name(path))
+    assert own >= 0, f"{module_name(path)} has no layer in tests/test_layers.py"
+    for name in imports(path):
+        if name == "__init__" and own == 6:
+            continue
+        assert layer(name) <= own, f"{module_name(path)} (layer {own}) imports {name} (layer {layer(name)})"
+
+
+@pytest.mark.parametrize("path", SOURCES, ids=module_name)
+def test_methods_never_import_each_other(path):
+    mine = room(module_name(path))
+    if mine is None:
+        return  # the registry, pipeline and tools may use any method
+    for name in imports(path):
+        other = room(name)
+        assert other is None or other == mine, f"{module_name(path)} imports {name} of {other}"
+
+
+@pytest.mark.parametrize("path", sorted((PACKAGE / "kernels").rglob("*.py")), ids=module_name)
+def test_kernels_import_only_kernels_and_constants(path):
+    for name in imports(path):
+        assert name == "constants" or name.startswith("kernels"), f"{module_name(path)} imports {name}"
+
+
+def _external(path: Path) -> set[str]:
+    names = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            names |= {a.name.split(".")[0] for a in node.names}
+        elif isinstance(node, ast.ImportFrom) and not node.level and node.module:
+            names.add(node.module.split(".")[0])
+    return names
+
+
+@pytest.mark.parametrize("library", sorted(OWNERS))
+def test_heavy_libraries_have_one_owner(library):
+    for path in SOURCES:
+        name = module_name(path)
+        if library in _external(path):
+            assert name.startswith(OWNERS[library]), f"{name} imports {library}"
+
+
+def test_the_layer_test_sees_imports():
+    # the resolver itself: a relative import three levels up, and a sibling module
+    names = imports(PACKAGE / "methods" / "embree" / "options.py")
+    assert "options" in names
+    assert "methods.embree.options" in imports(PACKAGE / "methods" / "embree" / "__init__.py")
 
 
 def _loaded_after(statement: str) -> set[str]:
@@ -30,10 +154,16 @@ def _loaded_after(statement: str) -> set[str]:
     return set(out.split())
 
 
-def test_cli_import_is_light():
-    loaded = _loaded_after("import aobake.cli")
-    for heavy in ("numpy", "numba", "trimesh", "embreex", "pxr", "matplotlib"):
-        assert heavy not in loaded, f"`import aobake.cli` pulls in {heavy}"
+HEAVY = {"numpy", "numba", "trimesh", "embreex", "pxr", "matplotlib"}
+
+
+@pytest.mark.parametrize(
+    "statement",
+    ["import aobake", "import aobake.cli", "import aobake.methods", "import aobake.options"],
+)
+def test_light_imports(statement):
+    loaded = _loaded_after(statement)
+    assert not HEAVY & loaded, f"`{statement}` pulls in {sorted(HEAVY & loaded)}"
 
 
 def test_readers_import_is_light():
@@ -41,75 +171,9 @@ def test_readers_import_is_light():
     assert not {"trimesh", "pxr"} & loaded, "trimesh and pxr are imported inside functions only"
 
 
-def test_package_import_is_light():
-    loaded = _loaded_after("import aobake")
-    assert not {"numba", "trimesh", "embreex", "pxr"} & loaded
-
-
 @pytest.mark.parametrize(
-    "module", sorted(p.stem for p in (PACKAGE / "kernels").glob("*.py") if p.stem != "__init__")
+    "module", sorted(module_name(p) for p in (PACKAGE / "kernels").rglob("*.py") if p.stem != "__init__")
 )
 def test_kernels_import_nothing_heavy(module):
-    loaded = _loaded_after(f"import aobake.kernels.{module}")
+    loaded = _loaded_after(f"import aobake.{module}")
     assert not {"trimesh", "embreex", "pxr", "click"} & loaded
-
-
-def _imports(path: Path) -> list[str]:
-    """aobake-internal modules imported by ``path`` (relative or absolute, anywhere in it)."""
-    tree = ast.parse(path.read_text())
-    found = []
-    for node in ast.walk(tree):
-        if isinstance(node, ast.ImportFrom):
-            if node.level:  # relative
-                base = node.module or ""
-                names = [base] if base else [a.name for a in node.names]
-                found += [n.split(".")[0] for n in names]
-            elif node.module and node.module.startswith("aobake."):
-                found.append(node.module.split(".")[1])
-        elif isinstance(node, ast.Import):
-            found += [a.name.split(".")[1] for a in node.names if a.name.startswith("aobake.")]
-    return found
-
-
-def _layer(name: str) -> int:
-    return LAYERS.get(name, LAYERS.get(name.split(".")[0], -1))
-
-
-@pytest.mark.parametrize("path", sorted(PACKAGE.glob("*.py")), ids=lambda p: p.stem)
-def test_no_module_imports_a_higher_layer(path):
-    own = _layer(path.stem)
-    assert own >= 0, f"{path.name} has no layer in tests/test_layers.py"
-    for name in _imports(path):
-        if name == "__version__":
-            continue
-        assert _layer(name) <= own, (
-            f"{path.name} (layer {own}) imports {name} (layer {_layer(name)})"
-        )
-
-
-@pytest.mark.parametrize("path", sorted((PACKAGE / "kernels").glob("*.py")), ids=lambda p: p.stem)
-def test_kernels_import_only_kernels_and_constants(path):
-    for name in _imports(path):
-        assert name in {"constants"} or (PACKAGE / "kernels" / f"{name}.py").exists(), (
-            f"{path.name} imports {name}"
-        )
-
-
-def _external(path: Path) -> set[str]:
-    tree = ast.parse(path.read_text())
-    names = set()
-    for node in ast.walk(tree):
-        if isinstance(node, ast.Import):
-            names |= {a.name.split(".")[0] for a in node.names}
-        elif isinstance(node, ast.ImportFrom) and not node.level and node.module:
-            names.add(node.module.split(".")[0])
-    return names
-
-
-def test_only_raytrace_imports_embreex_and_only_readers_imports_trimesh():
-    for path in PACKAGE.rglob("*.py"):
-        ext = _external(path)
-        if path.stem != "raytrace":
-            assert "embreex" not in ext, path
-        if path.stem != "readers":
-            assert "trimesh" not in ext, path

@@ -75,7 +75,7 @@ def test_cli_sweep_writes_table_csv_json_png_and_caches(tmp_path, monkeypatch):
     emb = {row["label"]: float(row["rmse"]) for row in rows if row["method"] == "embree"}
     assert emb["rays=4"] > emb["rays=64"] > emb["rays=1024"]
     # second run: the reference comes from the cache
-    import aobake.raytrace as rt
+    import aobake.methods.embree.estimator as rt
 
     calls = []
     real = rt.embree_ao

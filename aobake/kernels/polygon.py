@@ -24,10 +24,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from aobake.constants import FASTMATH, NEAR_PLANE_REL
-
-MEASURE_COSINE = 0
-MEASURE_UNIFORM = 1
+from aobake.constants import FASTMATH, MEASURE_COSINE, NEAR_PLANE_REL
 
 
 @njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")

@@ -9,12 +9,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ..constants import FASTMATH
+from ..constants import FASTMATH, MEASURE_COSINE
 from . import rng, warps
-
-#: ``measure`` codes shared with the wrapper.
-COSINE = 0
-UNIFORM = 1
 
 
 @njit(cache=True, fastmath=FASTMATH, error_model="numpy", nogil=True)
@@ -60,7 +56,7 @@ def generate_rays(origins, normals, keys, vertex_index, j0, j1, mode, out_org, o
             if not has_normal:
                 dx, dy, dz = warps.square_to_uniform_sphere(u0, u1)
             else:
-                if measure == COSINE:
+                if measure == MEASURE_COSINE:
                     x, y, z = warps.square_to_cosine_hemisphere(u0, u1)
                 else:
                     x, y, z = warps.square_to_uniform_hemisphere(u0, u1)

@@ -1,4 +1,5 @@
-"""The Embree reference against closed forms, a float64 reference tracer and itself."""
+"""The Embree reference (aobake.methods.embree) against closed forms, a float64
+reference tracer and itself; the contact-safe origins it starts from (aobake.contacts)."""
 
 from __future__ import annotations
 
@@ -10,18 +11,13 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from aobake.contacts import contact_origins, ray_offsets, shell_labels
 from aobake.kernels import topology as _topo
 from aobake.mesh import surface_from_arrays
-from aobake.raytrace import (
-    Scene,
-    contact_origins,
-    embree_ao,
-    half_width,
-    ray_offsets,
-    shell_labels,
-    stratified_half_width,
-)
+from aobake.methods.embree import EmbreeOptions, embree_ao
+from aobake.methods.embree.estimator import estimate, half_width, stratified_half_width
 from aobake.sampling import sample_directions
+from aobake.tracing import Tracer
 
 import shapes
 from reference import reference_ao
@@ -108,8 +104,8 @@ def test_matches_independent_float64_tracer():
     s, _ = shapes.sphere_on_ground(0.5, 2, gap=0.05, cells=6)
     n = 32
     result = embree_ao(s, n_rays=n, seed=5)
-    scene = Scene(s.positions, s.faces)
-    origins, _ = contact_origins(s, scene, ray_offsets(s, scene))
+    scene = Tracer(s.positions, s.faces)
+    origins, _ = contact_origins(s, scene, ray_offsets(s, scene.magnitude))
     dirs = sample_directions(s.normals, n, seed=5)
     ref = reference_ao(s, origins.astype(np.float64) + scene.center, dirs)
     assert np.abs(result.ao - ref).max() <= 2.0 / n
@@ -127,7 +123,7 @@ def test_stratified_beats_random_and_converges():
 
     def rmse(n, stratified):
         return np.sqrt(
-            np.mean((embree_ao(s, n_rays=n, seed=1, stratified=stratified).ao - ref) ** 2)
+            np.mean((estimate(s, EmbreeOptions(n_rays=n, seed=1), stratified=stratified).ao - ref) ** 2)
         )
 
     strat16, strat256 = rmse(16, True), rmse(256, True)
@@ -169,7 +165,7 @@ def test_scene_diagonal_bias_without_contact_fix_reproduces_the_peer_bug():
     # test above can tell a right answer from this wrong one.
     s, low = shapes.sphere_on_ground(0.5, 3, gap=0.0)
     diag = np.linalg.norm(np.ptp(s.positions, axis=0))
-    bad = embree_ao(s, n_rays=256, bias=1e-3 * diag, contact_fix=False).ao
+    bad = estimate(s, EmbreeOptions(n_rays=256, bias=1e-3 * diag), contact_fix=False).ao
     assert bad[low] == 1.0
     fixed = embree_ao(s, n_rays=256, bias=1e-3 * diag).ao
     assert fixed[low] == 0.0
@@ -205,7 +201,7 @@ def test_cube_on_floor_coplanar_contact():
     ao = embree_ao(s, n_rays=nr).ao
     assert abs((1.0 - ao[corner]) - exact) <= mc_bound(exact, nr)
     # without the fix the origin sits under the floor and the answer is the complement
-    wrong = embree_ao(s, n_rays=nr, contact_fix=False).ao
+    wrong = estimate(s, EmbreeOptions(n_rays=nr), contact_fix=False).ao
     assert abs((1.0 - wrong[corner]) - exact) > 0.3
 
 

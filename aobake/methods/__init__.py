@@ -1,0 +1,61 @@
+"""The AO methods behind one small interface, and the registry that finds them by name.
+
+Each method is a sub-package ``aobake.methods.<name>`` with a light ``options`` module
+(a frozen dataclass of :func:`aobake.options.option` fields: the single home of its
+defaults and help text) and a ``run(surface, options, progress) -> MethodResult``.
+Methods never import each other. This module loads a method only when it is asked for.
+"""
+
+from __future__ import annotations
+
+import importlib
+from dataclasses import dataclass
+from typing import Any
+
+#: What ``bake --method`` takes, in the order ``--help`` lists them.
+METHODS = ("embree", "bunnell")
+
+
+@dataclass(frozen=True)
+class MethodResult:
+    """What every method returns.
+
+    Attributes
+    ----------
+    ao : (n,) float64 in [0, 1]
+        Accessibility 1 - A per input vertex, in input order.
+    n_rays : int
+        Rays cast in total (0 for methods that cast none).
+    contacts : int
+        Vertices whose starting point was moved off a touching surface.
+    """
+
+    ao: Any
+    n_rays: int = 0
+    contacts: int = 0
+
+
+def _check_name(name: str) -> None:
+    if name not in METHODS:
+        raise ValueError(f"unknown method {name!r}; choose one of {', '.join(METHODS)}")
+
+
+def options_class(name: str) -> type:
+    """The options dataclass of method ``name`` (imports only its light options module)."""
+    _check_name(name)
+    module = importlib.import_module(f"{__name__}.{name}.options")
+    return module.OPTIONS
+
+
+def make_options(name: str, options=None, **changes):
+    """Options of method ``name``: from an instance, a dict and/or keywords, validated."""
+    from ..options import build
+
+    return build(options_class(name), options, **changes)
+
+
+def run(name: str, surface, options=None, progress=None, **changes) -> MethodResult:
+    """Bake ``surface`` with method ``name``; ``options`` as :func:`make_options` takes them."""
+    opts = make_options(name, options, **changes)
+    module = importlib.import_module(f"{__name__}.{name}")
+    return module.run(surface, opts, progress)

@@ -1,0 +1,223 @@
+"""The estimator of :mod:`aobake.methods.embree`: cosine-weighted (or uniform) rays from
+contact-safe origins, counted per vertex, in rounds when adaptive.
+
+Numpy-facing; the rays are generated and counted by ``aobake.kernels.rays`` (``_k.*``)
+and traced through :mod:`aobake.tracing`. Never prints.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..._types import AOArray, IndexArray
+from ...constants import ADAPTIVE_FIRST_ROUND, CHUNK_RAYS, INFINITE_DISTANCE, MEASURE_CODES, Z95
+from ...contacts import contact_origins, ray_offsets
+from ...errors import NumericalError
+from ...kernels import rays as _k
+from ...kernels import topology as _topo
+from ...mesh import Surface
+from ...options import build
+from ...progress import NullProgress, Progress
+from ...tracing import Tracer, split, trace_chunks
+from .. import MethodResult
+from .options import EmbreeOptions
+
+
+@dataclass(frozen=True)
+class EmbreeAO:
+    """Result of :func:`embree_ao`.
+
+    Attributes
+    ----------
+    ao : (n,) float64 in [0, 1]
+        Accessibility 1 - A (1 = open).
+    rays : (n,) int64
+        Rays cast per vertex (fewer than requested where adaptive sampling stopped early).
+    seconds : float
+        Wall time of the estimate (scene build included).
+    contacts : int
+        Vertices whose origin offset would have crossed another surface and was mirrored.
+    """
+
+    ao: AOArray
+    rays: IndexArray
+    seconds: float
+    contacts: int
+
+    @property
+    def n_rays(self) -> int:
+        return int(self.rays.sum())
+
+
+def _rounds(n_rays: int, adaptive: bool) -> list[tuple[int, int]]:
+    """Sample-index ranges per round; adaptive rounds end on powers of two."""
+    if not adaptive:
+        return [(0, n_rays)]
+    out, j0, j1 = [], 0, min(ADAPTIVE_FIRST_ROUND, n_rays)
+    while j0 < n_rays:
+        out.append((j0, j1))
+        j0, j1 = j1, min(2 * j1, n_rays)
+    return out
+
+
+def half_width(hits: np.ndarray, n: np.ndarray) -> np.ndarray:
+    """95% Agresti-Coull half-width of a binomial proportion hits/n (independent samples).
+
+    Never zero, so a vertex with no hits after a few rays is not declared exact.
+    """
+    z2 = Z95 * Z95
+    nt = n + z2
+    pt = (hits + 0.5 * z2) / nt
+    return Z95 * np.sqrt(pt * (1.0 - pt) / nt)
+
+
+def stratified_half_width(hits: np.ndarray, first_half_hits: np.ndarray, n: int) -> np.ndarray:
+    """95% half-width of the estimate hits/n from an Owen-scrambled (0,2)-sequence prefix.
+
+    Two estimates, the larger wins:
+
+    - the binomial (Agresti-Coull) half-width at an effective sample size
+      n_eff = n sqrt(n / 16): scrambled nets converge like n^-3/4 on AO integrands
+      (bench/accuracy_embree.py and the tests measure it), and at n = 16 this is the plain
+      binomial bound;
+    - Z95 |m1 - m2| / 2 from the two halves of the prefix (each half is itself a
+      scrambled net, an unbiased estimate), which catches integrands where
+      stratification gains less than assumed.
+    """
+    n_eff = n * math.sqrt(n / ADAPTIVE_FIRST_ROUND)
+    z2 = Z95 * Z95
+    p = hits / n
+    nt = n_eff + z2
+    pt = (p * n_eff + 0.5 * z2) / nt
+    binomial = Z95 * np.sqrt(pt * (1.0 - pt) / nt)
+    half = n / 2
+    m1 = first_half_hits / half
+    m2 = (hits - first_half_hits) / half
+    return np.maximum(binomial, Z95 * 0.5 * np.abs(m1 - m2))
+
+
+def embree_ao(
+    surface: Surface, options: EmbreeOptions | None = None, *, progress: Progress | None = None, **changes
+) -> EmbreeAO:
+    """Per-vertex ambient occlusion by Monte Carlo ray casting (the reference).
+
+    Parameters
+    ----------
+    surface : Surface
+        Triangles that occlude and vertices that receive.
+    options : EmbreeOptions, optional
+        ``n_rays``, ``measure``, ``max_distance``, ``bias``, ``tolerance``, ``seed``,
+        ``threads`` (see :class:`EmbreeOptions`); keywords override them:
+        ``embree_ao(surface, n_rays=64)``.
+    progress : Progress, optional
+
+    Returns
+    -------
+    EmbreeAO
+        ``ao`` (n,) float64 in [0, 1] = 1 - A, rays per vertex, seconds, contacts.
+
+    Notes
+    -----
+    Ray j of vertex i uses the j-th point of a 2-D Sobol sequence Owen-scrambled with a
+    hash of (seed, i), warped to the cosine-weighted (or uniform) hemisphere about the
+    vertex normal, so A_hat = hits / N is unbiased and every power-of-two prefix is
+    stratified. A vertex with no defined normal samples the whole sphere uniformly.
+    Every ray is a pure function of (seed, i, j): results are bit-identical for any
+    thread count and chunk size. With ``tolerance``, rays are cast in rounds that end on
+    powers of two and a vertex stops once :func:`stratified_half_width` is below it.
+    """
+    return estimate(surface, build(EmbreeOptions, options, **changes), progress)
+
+
+def run(surface: Surface, options: EmbreeOptions, progress: Progress | None = None) -> MethodResult:
+    """The method interface (:mod:`aobake.methods`)."""
+    result = estimate(surface, options, progress)
+    return MethodResult(result.ao, result.n_rays, result.contacts)
+
+
+def estimate(
+    surface: Surface,
+    options: EmbreeOptions,
+    progress: Progress | None = None,
+    *,
+    chunk_rays: int = CHUNK_RAYS,
+    stratified: bool = True,
+    contact_fix: bool = True,
+) -> EmbreeAO:
+    """:func:`embree_ao` with the knobs tests and the bench turn: ``chunk_rays`` rays per
+    Embree call at most (memory; no effect on the result), ``stratified=False`` plain
+    random numbers instead of the scrambled Sobol points, ``contact_fix=False`` plain
+    offset origins (the classic bug, :func:`aobake.contacts.contact_origins`)."""
+    t0 = time.perf_counter()
+    n_rays = options.n_rays
+    threads = max(1, int(options.threads or os.cpu_count() or 1))
+    progress = progress or NullProgress()
+
+    n = surface.n_vertices
+    tracer = Tracer(surface.positions, surface.faces)
+    edges = _topo.longest_edges(surface.positions, surface.faces)
+    offsets = ray_offsets(surface, tracer.magnitude, options.bias, edges)
+    if contact_fix:
+        origins, contacts = contact_origins(surface, tracer, offsets, edges)
+    else:
+        origins, contacts = (tracer.local + offsets[:, None] * surface.normals).astype(np.float32), 0
+    normals = np.ascontiguousarray(surface.normals, dtype=np.float64)
+    keys = _k.vertex_keys(np.uint64(options.seed), n)
+    mode = MEASURE_CODES[options.measure] + (0 if stratified else 2)
+    tfar = INFINITE_DISTANCE if options.max_distance is None else float(options.max_distance)
+    tolerance = options.tolerance
+
+    hits = np.zeros(n, dtype=np.int64)
+    cast = np.zeros(n, dtype=np.int64)
+    active = np.arange(n, dtype=np.int64)
+    progress.start(n * n_rays, "embree")
+
+    def trace(vertex_index: np.ndarray, j0: int, j1: int) -> int:
+        k = vertex_index.size * (j1 - j0)
+        org = np.zeros((k, 3), dtype=np.float32)
+        dirs = np.zeros((k, 3), dtype=np.float32)
+        _k.generate_rays(origins, normals, keys, vertex_index, j0, j1, mode, org, dirs)
+        ids = tracer.occluded(org, dirs, tfar)
+        _k.count_hits(ids, j1 - j0, vertex_index, hits)
+        return k
+
+    pool = ThreadPoolExecutor(max_workers=threads)
+    try:
+        for j0, j1 in _rounds(n_rays, tolerance is not None):
+            before = hits[active]
+            # at least 4 chunks per thread so small meshes keep every core busy and ray
+            # generation overlaps tracing; at most chunk_rays rays per chunk (memory)
+            per_chunk = max(1, min(chunk_rays // (j1 - j0), -(-active.size // (4 * threads))))
+            trace_chunks(
+                split(active, per_chunk),
+                lambda c, j0=j0, j1=j1: trace(c, j0, j1),
+                threads=threads,
+                progress=progress,
+                pool=pool,
+            )
+            cast[active] = j1
+            if tolerance is not None and j1 < n_rays:
+                if j0 == 0:
+                    width = half_width(hits[active], cast[active])
+                else:  # rounds double: this round is the second half of the prefix
+                    width = stratified_half_width(hits[active], before, j1)
+                keep = width >= tolerance
+                progress.advance(int((~keep).sum()) * (n_rays - j1))
+                active = active[keep]
+                if active.size == 0:
+                    break
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
+    progress.finish()
+
+    denom = np.maximum(cast, 1)
+    ao = 1.0 - hits / denom
+    if not np.isfinite(ao).all() or ao.min() < 0.0 or ao.max() > 1.0:
+        raise NumericalError(f"{surface.source}: embree produced AO outside [0, 1]")
+    return EmbreeAO(ao=ao, rays=cast, seconds=time.perf_counter() - t0, contacts=contacts)

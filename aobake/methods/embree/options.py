@@ -1,0 +1,64 @@
+"""Options of the ray-traced reference (light: no numpy, read by ``aobake --help``)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from ...options import (
+    max_distance_option,
+    measure_option,
+    option,
+    seed_option,
+    threads_option,
+    validate,
+)
+
+
+@dataclass(frozen=True)
+class EmbreeOptions:
+    """What a user chooses for :func:`aobake.methods.embree.embree_ao`.
+
+    Attributes
+    ----------
+    n_rays : int
+        Rays per vertex (the most, with ``tolerance``); ``--rays``.
+    measure : {"cosine", "uniform"}
+    max_distance : float or None
+        Rays stop at this distance (mesh units); None = unbounded.
+    bias : float or None
+        Ray-origin offset along the normal in mesh units; None = from float precision
+        and the local edge length (:func:`aobake.contacts.ray_offsets`).
+    tolerance : float or None
+        Adaptive sampling: stop a vertex once its 95% interval half-width is below this.
+    seed : int
+        Key of the per-vertex Owen-scrambled Sobol directions.
+    threads : int or None
+        Worker threads (default: all cores); the result does not depend on it.
+    """
+
+    n_rays: int = option(256, "Rays per vertex (the most, with --tolerance).", kind=int, low=1, flag="rays")
+    measure: str = measure_option()
+    max_distance: float | None = max_distance_option()
+    bias: float | None = option(
+        None,
+        "Ray origin offset along the normal (mesh units).",
+        kind=float,
+        low=0,
+        none="from float precision and edge length",
+    )
+    tolerance: float | None = option(
+        None,
+        "Adaptive: stop a vertex once its 95% interval half-width is below this.",
+        kind=float,
+        low=0,
+        low_open=True,
+        none="off",
+    )
+    seed: int = seed_option()
+    threads: int | None = threads_option()
+
+    def __post_init__(self):
+        validate(self)
+
+
+OPTIONS = EmbreeOptions
