@@ -23,9 +23,17 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from aobake.constants import COINCIDENT_REL, DIRECTION_SECTORS, DIRECTION_WIDE, FASTMATH, PASS_RADII
+from aobake.constants import (
+    COINCIDENT_REL,
+    DIRECTION_SECTORS,
+    DIRECTION_WIDE,
+    FASTMATH,
+    MEASURE_COSINE,
+    MEASURE_UNIFORM,
+    PASS_RADII,
+)
 
-from .polygon import MEASURE_COSINE, MEASURE_UNIFORM, cell_terms
+from .polygon import cell_terms
 from .warps import frame as tangent_frame
 
 __all__ = [

@@ -11,7 +11,7 @@ import numba
 import numpy as np
 from numba import njit, prange
 
-from aobake.constants import COINCIDENT_REL, FASTMATH
+from aobake.constants import COINCIDENT_REL, FASTMATH, MEASURE_COSINE
 
 from .bunnell import (
     HALF32,
@@ -59,7 +59,7 @@ from .hierarchy import (
     N_Y,
     N_Z,
 )
-from .polygon import MEASURE_COSINE, cell_terms
+from .polygon import cell_terms
 from .warps import frame as tangent_frame
 
 # Scratch rows per thread (float32): the near list (emitters of opened leaves: centre,
