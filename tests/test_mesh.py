@@ -1,4 +1,4 @@
-"""Validation and per-vertex geometry of aobake.mesh (arrays in; files are tests/test_io_readers.py)."""
+"""Validation and per-vertex geometry of aobake.mesh, from arrays (files: test_io_readers.py)."""
 
 from __future__ import annotations
 
