@@ -23,11 +23,11 @@ __all__ = [
 _LAZY = {
     "bake": "pipeline",
     "bake_file": "pipeline",
-    "load_mesh": "readers",
+    "load_mesh": "io",
     "embree_ao": "methods.embree",
-    "write_ply": "io_ply",
-    "write_usd": "io_usd",
-    "write_bake": "formats",
+    "write_ply": "io",
+    "write_usd": "io",
+    "write_bake": "io",
 }
 
 

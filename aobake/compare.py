@@ -1,7 +1,7 @@
 """Error reports between two bakes of the same mesh: arrays in, numbers out.
 
 Reads and writes no mesh files (the CLI and pipeline do); ``plot_compare`` imports
-matplotlib lazily and writes through ``io_common.atomic_write``.
+matplotlib lazily and writes through ``io.atomic_write``.
 """
 
 from __future__ import annotations
@@ -13,7 +13,8 @@ from pathlib import Path
 import numpy as np
 
 from .errors import InputError
-from .io_common import atomic_write, pyplot
+from .io import atomic_write
+from .plot import pyplot
 
 
 @dataclass(frozen=True)

@@ -829,7 +829,7 @@ def save_field(f: AOField, path: str | Path) -> None:
     Zip entries carry a fixed date, so the same field gives the same bytes.
     """
     from . import __version__
-    from .io_common import atomic_write
+    from .io import atomic_write
 
     arrays = {
         "format_version": np.array(FORMAT_VERSION, dtype=np.int64),

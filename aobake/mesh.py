@@ -1,6 +1,6 @@
 """The :class:`Surface` a bake works on: validation, derived per-vertex data, assembly.
 
-Files are read by :mod:`aobake.readers`, which hands each mesh it finds here as a
+Files are read by :mod:`aobake.io`, which hands each mesh it finds here as a
 :class:`RawPart`; :func:`assemble_surface` validates the parts and concatenates them.
 Imports numpy and aobake's ``constants``, ``errors`` and ``_types`` only. Knows nothing
 about AO methods.

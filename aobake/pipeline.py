@@ -18,7 +18,7 @@ from . import __version__
 from ._types import AOArray
 from .constants import DEFAULT_METERS_PER_UNIT, DEFAULT_UP_AXIS
 from .errors import FormatError, NumericalError
-from .io_common import check_output_dir, output_kind
+from .io import check_output_dir, output_kind
 from .mesh import Surface
 from .methods import METHODS
 from .progress import Progress
@@ -80,7 +80,8 @@ def as_surface(mesh: Any) -> Surface:
     """A :class:`Surface` from a path, a ``trimesh.Trimesh``/``Scene``, or a Surface."""
     if isinstance(mesh, Surface):
         return mesh
-    from .readers import load_mesh, mesh_from_trimesh
+    from .io import load_mesh
+    from .io.trimesh_formats import mesh_from_trimesh
 
     if isinstance(mesh, (str, Path)):
         return load_mesh(mesh)
@@ -164,8 +165,7 @@ def bake_file(
     -------
     BakeReport
     """
-    from .formats import write_bake
-    from .io_common import atomic_write
+    from .io import atomic_write, write_bake
 
     outputs = [Path(output)] if isinstance(output, (str, Path)) else [Path(o) for o in output]
     if not outputs:
@@ -240,8 +240,7 @@ def compare_files(
     aobake.compare.Report
     """
     from .compare import compare_ao, plot_compare
-    from .formats import read_bake
-    from .io_common import atomic_write
+    from .io import atomic_write, read_bake
 
     for out in (json_path, plot_path, render_path):
         if out is not None:
@@ -254,7 +253,7 @@ def compare_files(
     positions = None
     for path, values in ((reference, a), (candidate, b)):
         if Path(path).suffix.lower() != ".npy":
-            from .readers import load_mesh
+            from .io import load_mesh
 
             surface = load_mesh(path)
             if surface.n_vertices == values.size:
@@ -304,7 +303,7 @@ def sweep_file(
     import hashlib
 
     from . import sweep
-    from .io_common import atomic_write
+    from .io import atomic_write
 
     out_dir = Path(out_dir)
     # the directory may exist (the reference cache lives there); its parent must
@@ -365,9 +364,8 @@ def preview_file(
     elevation: float | None = None,
 ) -> None:
     """Render a bake (a mesh file carrying ``ao``: PLY or USD) to a PNG, AO as grey."""
-    from .formats import read_bake
+    from .io import load_mesh, read_bake
     from .preview import grey, render_values, write_png
-    from .readers import load_mesh
 
     if Path(output).suffix.lower() != ".png":
         raise FormatError(f"{Path(output).name}: previews are written as PNG; use a .png suffix")
@@ -384,9 +382,8 @@ def preview_file(
 def render_comparison(reference, candidate, output, *, size: int = 480, up: str | None = None, view: str = "iso"):
     """Side-by-side PNG of two bakes of one mesh and their difference (blue: candidate
     darker, red: lighter; full scale = the largest |difference|)."""
-    from .formats import read_bake
+    from .io import load_mesh, read_bake
     from .preview import error_colours, grey, render_values, write_png
-    from .readers import load_mesh
 
     mesh_path = next((p for p in (reference, candidate) if Path(p).suffix.lower() != ".npy"), None)
     if mesh_path is None:
@@ -517,7 +514,7 @@ def _field_sweep(surface, out_dir, key, up_axis, reference_rays, seed, threads, 
     on the ground vertices against Embree AO of occluder + ground."""
     from . import sweep
     from .field import field_ao, fit_field
-    from .io_common import atomic_write
+    from .io import atomic_write
     from .mesh import surface_from_arrays
     from .methods.embree import embree_ao
 

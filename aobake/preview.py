@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .io_common import atomic_write
+from .io import atomic_write
 from .kernels import render as _k
 
 #: Named views: (azimuth, elevation) in degrees, azimuth about the up axis from +X.

@@ -16,7 +16,8 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from .io_common import atomic_write, pyplot
+from .io import atomic_write
+from .plot import pyplot
 
 #: Default grid: (method, label, options). Embree 4..1024 rays, with and without
 #: adaptivity; Bunnell passes and opening parameter (when that method is available).

@@ -14,8 +14,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
 
+from aobake.io import load_mesh  # noqa: E402
 from aobake.raytrace import embree_ao  # noqa: E402
-from aobake.readers import load_mesh  # noqa: E402
 
 import shapes  # noqa: E402
 

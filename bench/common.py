@@ -47,7 +47,7 @@ def load_surface(path: Path):
     """The project's ``load_mesh`` (wherever it lives now), else trimesh (``process=False``)."""
     import importlib
 
-    for module in ("aobake.readers", "aobake.mesh"):
+    for module in ("aobake.io", "aobake.mesh"):
         try:
             load_mesh = importlib.import_module(module).load_mesh
         except (ImportError, AttributeError):

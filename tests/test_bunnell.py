@@ -1202,8 +1202,7 @@ def test_cli_bunnell_writes_what_the_api_computes(scene_ply, tmp_path, flag):
     from click.testing import CliRunner
 
     from aobake.cli import main
-    from aobake.formats import read_bake
-    from aobake.readers import load_mesh
+    from aobake.io import load_mesh, read_bake
 
     out = tmp_path / "out.ply"
     args = ["bake", str(scene_ply), "-o", str(out), "--method", "bunnell", "--passes", "2",

@@ -15,7 +15,7 @@ import trimesh
 from click.testing import CliRunner
 
 from aobake.cli import main
-from aobake.formats import read_bake
+from aobake.io import read_bake
 
 import shapes
 

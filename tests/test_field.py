@@ -433,8 +433,7 @@ def _run(args):
 
 
 def test_cli_field_then_bake_multiplies(cli_files):
-    from aobake.formats import read_bake
-    from aobake.readers import load_mesh
+    from aobake.io import load_mesh, read_bake
 
     d = cli_files
     options = ["--resolution", "4", "--radial-samples", "5", "--raster-size", "16"]

@@ -8,10 +8,9 @@ import pytest
 pxr = pytest.importorskip("pxr")
 from pxr import Sdf, Usd, UsdGeom  # noqa: E402
 
-from aobake import io_usd  # noqa: E402
 from aobake.errors import InputError, NumericalError, OutputError  # noqa: E402
-from aobake.formats import read_bake, write_bake  # noqa: E402
-from aobake.io_usd import read_ao_usd, write_usd  # noqa: E402
+from aobake.io import read_bake, usd, write_bake  # noqa: E402
+from aobake.io.usd import read_ao_usd, write_usd  # noqa: E402
 from aobake.mesh import Part, Surface, surface_from_arrays  # noqa: E402
 
 SUFFIXES = [".usda", ".usdc", ".usd"]
@@ -202,7 +201,7 @@ def test_same_input_gives_identical_bytes(tmp_path, suffix):
 @pytest.mark.parametrize("suffix", SUFFIXES)
 def test_failure_midway_leaves_nothing(tmp_path, monkeypatch, suffix):
     surface, ao = _two_parts()
-    real = io_usd._author_mesh
+    real = usd._author_mesh
     calls = []
 
     def second_mesh_fails(*args, **kwargs):
@@ -211,7 +210,7 @@ def test_failure_midway_leaves_nothing(tmp_path, monkeypatch, suffix):
             raise RuntimeError("interrupted")
         return real(*args, **kwargs)
 
-    monkeypatch.setattr(io_usd, "_author_mesh", second_mesh_fails)
+    monkeypatch.setattr(usd, "_author_mesh", second_mesh_fails)
     out = tmp_path / f"fail{suffix}"
     with pytest.raises(RuntimeError, match="interrupted") as info:
         write_usd(out, surface, ao)
@@ -228,7 +227,7 @@ def test_failure_keeps_previous_output(tmp_path, monkeypatch):
     write_usd(out, surface, ao)
     before = out.read_bytes()
     monkeypatch.setattr(
-        io_usd, "_author_mesh", lambda *a, **k: (_ for _ in ()).throw(OSError(28, "No space left"))
+        usd, "_author_mesh", lambda *a, **k: (_ for _ in ()).throw(OSError(28, "No space left"))
     )
     with pytest.raises(OutputError, match="No space left"):
         write_usd(out, surface, np.zeros(5))

@@ -20,9 +20,10 @@ LAYERS = {
     "kernels": 1,
     "mesh": 2, "sampling": 2, "progress": 2,
     "tracing": 3, "contacts": 3,
-    "io_common": 3, "ply": 3, "readers": 3, "io_ply": 3, "io_usd": 3, "formats": 3,
+    "io": 3,
     "methods": 4, "bunnell": 4, "hierarchy": 4, "field": 4, "raster": 4,
     "pipeline": 5, "compare": 5, "sweep": 5, "preview": 5,
+    "plot": 5,
     "cli": 6, "__main__": 6, "__init__": 6,
 }  # fmt: skip
 
@@ -32,7 +33,7 @@ ROOMS = ("methods.embree", "methods.bunnell", "methods.fields")
 # The only modules that may import these libraries (prefixes).
 OWNERS = {
     "embreex": ("tracing",),
-    "trimesh": ("readers",),
+    "trimesh": ("io.trimesh_formats",),
 }
 
 
@@ -166,8 +167,8 @@ def test_light_imports(statement):
     assert not HEAVY & loaded, f"`{statement}` pulls in {sorted(HEAVY & loaded)}"
 
 
-def test_readers_import_is_light():
-    loaded = _loaded_after("import aobake.readers")
+def test_io_import_is_light():
+    loaded = _loaded_after("import aobake.io")
     assert not {"trimesh", "pxr"} & loaded, "trimesh and pxr are imported inside functions only"
 
 

@@ -10,7 +10,7 @@ import trimesh
 
 import aobake
 from aobake.errors import FormatError, InputError
-from aobake.formats import read_bake
+from aobake.io import read_bake
 from aobake.progress import NullProgress, StderrProgress, make_progress
 
 import shapes
@@ -82,12 +82,12 @@ def test_several_outputs_from_one_bake(tmp_path):
 
 
 def test_failure_in_second_output_leaves_neither(tmp_path, monkeypatch):
-    import aobake.formats as formats
+    import aobake.io
 
     s, _ = shapes.sphere_on_ground(0.5, 2, cells=4)
     src = tmp_path / "s.ply"
     trimesh.Trimesh(s.positions, s.faces, process=False).export(src)
-    real = formats.write_bake
+    real = aobake.io.write_bake
     calls = []
 
     def flaky(path, *args, **kwargs):
@@ -96,7 +96,7 @@ def test_failure_in_second_output_leaves_neither(tmp_path, monkeypatch):
             raise OSError("disk full")
         return real(path, *args, **kwargs)
 
-    monkeypatch.setattr(formats, "write_bake", flaky)
+    monkeypatch.setattr(aobake.io, "write_bake", flaky)
     with pytest.raises(OSError):
         aobake.bake_file(src, [tmp_path / "a.ply", tmp_path / "a.usda"], n_rays=8)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["s.ply"]

@@ -80,7 +80,7 @@ def compute(name: str) -> np.ndarray:
     """The float64 result of case ``name`` (see CASES)."""
     import aobake
     from aobake.field import field_ao, fit_field
-    from aobake.readers import load_mesh
+    from aobake.io import load_mesh
 
     mesh, method, options = CASES[name]
     if method != "field":

@@ -1,7 +1,8 @@
-"""Pick the writer or reader for a bake file from its suffix (PLY, USD, or a ``.npy`` array).
+"""Mesh files in and bake files out, by suffix: one module per format (reading and
+writing together), atomic writes and the checks run before any write.
 
-Arrays in, files out: computes no AO. Imports numpy, aobake's ``errors``,
-``io_common``, ``io_ply`` and ``io_usd`` (which imports ``pxr`` only when called).
+Computes no AO. Importing it loads numpy only: trimesh and pxr are imported inside the
+functions that need them.
 """
 
 from __future__ import annotations
@@ -11,10 +12,123 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import InputError
-from .io_common import output_kind
-from .io_ply import read_ao_ply, write_ply
-from .io_usd import read_ao_usd, write_usd
+from ..errors import InputError
+from ..mesh import Surface, assemble_surface
+from . import obj, ply, trimesh_formats, usd
+from .common import (
+    BAKE_SUFFIXES,
+    atomic_write,
+    check_ao,
+    check_output_dir,
+    output_kind,
+    short_reason,
+)
+from .ply import read_ao_ply, write_ply
+from .usd import read_ao_usd, write_usd
+
+__all__ = [
+    "BAKE_SUFFIXES",
+    "INPUT_FORMATS",
+    "READ_SUFFIXES",
+    "atomic_write",
+    "check_ao",
+    "check_output_dir",
+    "load_mesh",
+    "output_kind",
+    "read_ao_ply",
+    "read_ao_usd",
+    "read_bake",
+    "write_bake",
+    "write_ply",
+    "write_usd",
+]
+
+#: Input suffixes and the format name used in messages.
+INPUT_FORMATS = {
+    ".ply": "PLY",
+    ".obj": "OBJ",
+    ".stl": "STL",
+    ".off": "OFF",
+    ".glb": "glTF",
+    ".gltf": "glTF",
+    ".usd": "USD",
+    ".usda": "USD",
+    ".usdc": "USD",
+    ".usdz": "USD",
+}
+
+
+def load_mesh(path: str | Path) -> Surface:
+    """Read a mesh file into a :class:`Surface`, keeping its vertices exactly.
+
+    Vertex count and order are the file's: duplicate, unreferenced and degenerate data
+    survive (trimesh, used for STL, OFF and glTF, is called with ``process=False``, which
+    does not merge vertices). A file holding several meshes
+    (glTF nodes, OBJ objects, USD ``Mesh`` prims) becomes one surface whose parts are
+    the meshes in file order, with world transforms applied; point clouds and curves are
+    ignored.
+
+    Parameters
+    ----------
+    path : str or Path
+        A ``.ply``, ``.obj``, ``.stl``, ``.off``, ``.glb``, ``.gltf``, ``.usd``,
+        ``.usda``, ``.usdc`` or ``.usdz`` file.
+
+    Returns
+    -------
+    Surface
+        ``positions`` (n, 3) float64 in world space, ``faces`` (m, 3) int64 (polygons
+        fan-triangulated), ``normals`` (n, 3) float64: the file's vertex normals
+        (PLY ``nx ny nz``, OBJ ``vn``, glTF ``NORMAL``, USD ``normals`` with vertex or
+        varying interpolation) transformed by the inverse transpose of the world
+        transform, else angle-weighted face normals; zero rows where no normal exists.
+
+    Raises
+    ------
+    InputError
+        Missing file, directory, unsupported suffix, unreadable or malformed data, empty
+        mesh, no faces, NaN/inf coordinates, or indices out of range. The message is one
+        line starting with the file name; foreign exceptions are chained.
+
+    Notes
+    -----
+    Transforms that mirror (negative determinant) and USD ``leftHanded`` meshes get
+    their winding reversed, so faces stay counter-clockwise around their normal. PLY and
+    OBJ are read by aobake (:mod:`aobake.io.ply`, :mod:`aobake.io.obj`; trimesh misreads
+    some of both), STL, OFF and glTF by trimesh (:mod:`aobake.io.trimesh_formats`), USD
+    by pxr (:mod:`aobake.io.usd`).
+    """
+    path = Path(path)
+    fmt = INPUT_FORMATS.get(path.suffix.lower())
+    if not path.exists():
+        raise InputError(path, "file not found")
+    if path.is_dir():
+        raise InputError(path, "is a directory, not a mesh file")
+    if fmt is None:
+        supported = ", ".join(sorted(INPUT_FORMATS))
+        raise InputError(
+            path, f"unsupported input suffix {path.suffix or '(none)'!r}; use one of {supported}"
+        )
+    metadata: dict = {"format": fmt}
+    try:
+        if fmt == "USD":
+            raw = usd.read_parts(path, metadata)
+        else:
+            data = path.read_bytes()
+            if fmt == "OBJ":
+                raw = obj.read_parts(path, data)
+            elif fmt == "PLY":
+                raw = ply.read_parts(path, data)
+            else:
+                raw = trimesh_formats.read_parts(path, data, fmt, metadata)
+    except InputError:
+        raise
+    except OSError as exc:
+        raise InputError(path, f"cannot read file: {exc.strerror or short_reason(exc)}") from exc
+    except Exception as exc:  # any loader failure becomes a one-line InputError
+        raise InputError(path, f"cannot read as {fmt}: {short_reason(exc)}") from exc
+    return assemble_surface(raw, path, metadata)
+
 
 #: Suffixes :func:`read_bake` understands, and the reader family for each.
 READ_SUFFIXES = {
@@ -42,7 +156,7 @@ def write_bake(
     PLY gets the whole surface concatenated (positions, triangles, normals, ``ao``)
     with ``custom_data`` as ``comment aobake <key>=<value>`` header lines; PLY has no
     up axis or unit, so ``up_axis`` and ``meters_per_unit`` apply to USD only. USD gets
-    one mesh per part with its original polygons (see :func:`aobake.io_usd.write_usd`).
+    one mesh per part with its original polygons (see :func:`aobake.io.usd.write_usd`).
 
     Parameters
     ----------

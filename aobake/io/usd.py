@@ -1,7 +1,8 @@
-"""USD output (one ``UsdGeom.Mesh`` per part with a vertex primvar ``ao``) and reading it back.
+"""USD: meshes in (every visible ``UsdGeom.Mesh`` in world space), bakes out (one
+``UsdGeom.Mesh`` per part with a vertex primvar ``ao``), and ``ao`` read back.
 
-Arrays in, files out: computes no AO. ``pxr`` is imported inside the functions only, so
-importing this module stays cheap (see STYLE 3.3).
+Computes no AO. ``pxr`` is imported inside the functions only, so importing this module
+stays cheap.
 
 Layer caching: USD keeps every open layer in a process-wide registry keyed by its
 path, and ``Usd.Stage.Open`` returns the registered layer without looking at the disk.
@@ -23,8 +24,10 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import InputError, OutputError
-from .io_common import atomic_write, check_ao
+from .._types import FloatArray
+from ..errors import InputError, OutputError
+from ..mesh import RawPart, fan_triangulate, reverse_polygons, transformed_part
+from .common import atomic_write, check_ao
 
 #: Largest index a USD ``int[]`` (int32) can hold.
 INT32_MAX = int(np.iinfo(np.int32).max)
@@ -377,3 +380,118 @@ def _author_mesh(
         display.Set(Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(grey, dtype=np.float32)))
     if custom_data:
         mesh.GetPrim().SetCustomDataByKey(CUSTOM_DATA_KEY, custom_data)
+
+
+# -- reading meshes ---------------------------------------------------------------------
+
+
+def read_parts(path: Path, metadata: dict) -> list[RawPart]:
+    """Every visible ``UsdGeom.Mesh`` in world space (instance proxies included; guide and
+    proxy purposes skipped)."""
+    try:
+        from pxr import Usd, UsdGeom
+    except ImportError as exc:
+        raise InputError(
+            path, "reading USD needs the usd-core package (pip install usd-core)"
+        ) from exc
+
+    stage = Usd.Stage.Open(str(path))
+    if stage is None:
+        raise InputError(path, "cannot read as USD: the stage did not open")
+    metadata.update(
+        up_axis=str(UsdGeom.GetStageUpAxis(stage)),
+        meters_per_unit=float(UsdGeom.GetStageMetersPerUnit(stage)),
+    )
+    time = Usd.TimeCode.Default()
+    skipped_purposes = {UsdGeom.Tokens.guide, UsdGeom.Tokens.proxy}
+    raw = []
+    for prim in stage.Traverse(Usd.TraverseInstanceProxies()):
+        if not prim.IsA(UsdGeom.Mesh):
+            continue
+        imageable = UsdGeom.Imageable(prim)
+        if imageable.ComputeVisibility(time) == UsdGeom.Tokens.invisible:
+            continue
+        if imageable.ComputePurpose() in skipped_purposes:
+            continue
+        raw.append(_usd_mesh_part(path, UsdGeom.Mesh(prim), time))
+    if not raw:
+        raise InputError(path, "no visible UsdGeom.Mesh in the stage")
+    return raw
+
+
+def _usd_mesh_part(path: Path, mesh, time) -> RawPart:
+    """One USD mesh: world points, fan triangles (holes dropped), original polygons kept
+    (corner order reversed for ``leftHanded`` meshes so every part is right-handed)."""
+    from pxr import UsdGeom
+
+    prim = mesh.GetPrim()
+    where = str(prim.GetPath())
+    points = np.asarray(_usd_value(mesh.GetPointsAttr(), time, ()), dtype=np.float64).reshape(-1, 3)
+    counts = np.asarray(
+        _usd_value(mesh.GetFaceVertexCountsAttr(), time, ()), dtype=np.int64
+    ).reshape(-1)
+    indices = np.asarray(
+        _usd_value(mesh.GetFaceVertexIndicesAttr(), time, ()), dtype=np.int64
+    ).reshape(-1)
+    if (counts < 0).any() or counts.sum() != len(indices):
+        raise InputError(
+            path,
+            f"{where}: faceVertexCounts sum to {int(counts.sum())} "
+            f"but faceVertexIndices has {len(indices)} entries",
+        )
+    if mesh.GetOrientationAttr().Get(time) == UsdGeom.Tokens.leftHanded:
+        # kept right-handed from here on, in the traced faces and in the part's topology
+        indices = reverse_polygons(counts, indices)
+    traced_counts, traced_indices = counts, indices
+    holes = np.asarray(_usd_value(mesh.GetHoleIndicesAttr(), time, ()), dtype=np.int64).reshape(-1)
+    if len(holes):
+        keep = np.ones(len(counts), dtype=bool)
+        keep[holes[(holes >= 0) & (holes < len(counts))]] = False
+        traced_indices = indices[np.repeat(keep, counts)]
+        traced_counts = counts[keep]
+    faces = fan_triangulate(traced_counts, traced_indices)
+    normals = _usd_normals(mesh, time, len(points))
+    matrix = np.array(UsdGeom.Xformable(prim).ComputeLocalToWorldTransform(time), dtype=np.float64)
+    return transformed_part(
+        prim.GetName(),
+        points,
+        faces,
+        normals,
+        counts,
+        indices,
+        matrix[:3, :3],
+        matrix[3, :3],
+        where,
+    )
+
+
+def _usd_value(attribute, time, default):
+    """An attribute's value at ``time``, else its earliest time sample, else ``default``."""
+    from pxr import Usd
+
+    value = attribute.Get(time) if attribute else None
+    if value is None and attribute and attribute.GetNumTimeSamples():
+        value = attribute.Get(Usd.TimeCode.EarliestTime())
+    return default if value is None else value
+
+
+def _usd_normals(mesh, time, n: int) -> FloatArray | None:
+    """Per-point normals from ``primvars:normals`` (preferred) or ``normals``, else None.
+
+    Only ``vertex`` / ``varying`` interpolation maps one normal to each point;
+    face-varying or uniform normals are left to the angle-weighted computation.
+    """
+    from pxr import UsdGeom
+
+    primvar = UsdGeom.PrimvarsAPI(mesh.GetPrim()).GetPrimvar("normals")
+    if primvar and primvar.HasAuthoredValue():
+        values, interpolation = primvar.ComputeFlattened(time), primvar.GetInterpolation()
+    else:
+        attribute = mesh.GetNormalsAttr()
+        if not attribute.HasAuthoredValue():
+            return None
+        values, interpolation = _usd_value(attribute, time, None), mesh.GetNormalsInterpolation()
+    if values is None or interpolation not in (UsdGeom.Tokens.vertex, UsdGeom.Tokens.varying):
+        return None
+    normals = np.asarray(values, dtype=np.float64).reshape(-1, 3)
+    return normals if len(normals) == n else None

@@ -1,17 +1,9 @@
-"""PLY output with a per-vertex ``ao`` property, and reading ``ao`` back from any PLY.
+"""PLY: meshes in (any PLY: ASCII or binary, polygons of mixed sizes), bakes out (a
+per-vertex float32 ``ao``), and ``ao`` read back from any tool's PLY.
 
-Arrays in, files out: computes no AO. Imports numpy and aobake's ``errors``,
-``io_common`` and ``ply`` only (no trimesh, no plyfile).
-
-Why not trimesh's exporter: the format is a short text header followed by two packed
-numpy structured arrays, so writing it here is a few lines and every byte is ours.
-trimesh's ``export_ply`` needs a ``Trimesh`` (whose constructor and caches we would have
-to keep from touching the vertices), writes the dtype a custom attribute happens to have
-(a float64 ``ao`` becomes ``double``), exports colour as RGBA and adds its own comment;
-the layer rules also keep trimesh out of the writers (``readers`` is its only importer).
-Here the header is fixed by construction: ``ao`` is always ``float``. Reading goes
-through :mod:`aobake.ply`, which handles ASCII and both binary encodings, so PLY files
-from other tools (MeshLab, Blender, CloudCompare) read too.
+Computes no AO; no trimesh. Parsing is :mod:`aobake.io.plyparse`. Writing is ours, not
+trimesh's exporter: that needs a ``Trimesh`` and writes whatever dtype an attribute has
+(a float64 ``ao`` becomes ``double``); here ``ao`` is always ``float`` by construction.
 """
 
 from __future__ import annotations
@@ -21,12 +13,45 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import InputError, OutputError
-from .io_common import atomic_write, check_ao
-from .ply import PlyList, read_bytes, read_ply, read_ply_header
+from ..errors import InputError, OutputError
+from ..mesh import RawPart, fan_triangulate
+from .common import atomic_write, check_ao
+from .plyparse import PlyList, read_bytes, read_ply, read_ply_header
 
 #: Largest index a PLY ``int`` (int32) face index can hold.
 INT32_MAX = int(np.iinfo(np.int32).max)
+
+
+def read_parts(path: Path, data: bytes) -> list[RawPart]:
+    """Vertices (``x y z``, optional ``nx ny nz``) and polygon faces of a PLY.
+
+    Faces may mix polygon sizes; they keep their polygons (fan-triangulated for tracing).
+    Other elements and properties (colours, edges...) are read and ignored.
+    """
+    ply = read_ply(path, data)
+    vertex = ply.elements.get("vertex")
+    if vertex is None:
+        return []
+    columns = vertex.properties
+    missing = [axis for axis in "xyz" if not isinstance(columns.get(axis), np.ndarray)]
+    if missing:
+        raise InputError(path, f"cannot read as PLY: vertex element lacks property {missing[0]!r}")
+    positions = np.column_stack([columns[axis] for axis in "xyz"]).astype(np.float64)
+    normals = None
+    if all(isinstance(columns.get(key), np.ndarray) for key in ("nx", "ny", "nz")):
+        normals = np.column_stack([columns[key] for key in ("nx", "ny", "nz")]).astype(np.float64)
+    counts, corners = np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+    face = ply.elements.get("face")
+    lists = {} if face is None else face.properties
+    lists = {key: value for key, value in lists.items() if isinstance(value, PlyList)}
+    if lists:
+        key = next((k for k in ("vertex_indices", "vertex_index") if k in lists), next(iter(lists)))
+        counts, corners = lists[key]
+        if corners.dtype.kind == "f" and not (corners == np.round(corners)).all():
+            raise InputError(path, f"cannot read as PLY: face {key!r} holds non-integer indices")
+        corners = corners.astype(np.int64)
+    faces = fan_triangulate(counts, corners)
+    return [RawPart(path.stem, positions, faces, normals, counts, corners)]
 
 
 def write_ply(
@@ -170,7 +195,7 @@ def read_ao_ply(path: str | Path) -> np.ndarray:
     """Read the per-vertex ``ao`` property of a PLY file (``quality`` if there is no ``ao``).
 
     Reads ASCII, binary little-endian and binary big-endian PLY, from aobake or any
-    other tool (parsed by :func:`aobake.ply.read_ply`). Only the header, the vertex
+    other tool (parsed by :func:`aobake.io.plyparse.read_ply`). Only the header, the vertex
     element and the elements before it are parsed.
 
     Parameters

@@ -1,4 +1,5 @@
-"""Atomic writes, output-suffix checks and the finite/range guard run before any write.
+"""What every format shares: atomic writes, output-suffix checks, the finite/range guard
+run before any write, and one-line messages from text decoding and foreign errors.
 
 Computes nothing; imports numpy and aobake.errors only.
 """
@@ -7,13 +8,14 @@ from __future__ import annotations
 
 import contextlib
 import os
+import re
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 
-from .errors import AobakeError, FormatError, NumericalError, OutputError
+from ..errors import FormatError, InputError, NumericalError, OutputError
 
 #: Output suffixes and the writer family that handles them.
 BAKE_SUFFIXES = {".ply": "ply", ".usda": "usd", ".usdc": "usd", ".usd": "usd"}
@@ -112,15 +114,36 @@ def atomic_write(path: str | Path) -> Iterator[Path]:
         raise
 
 
-def pyplot():
-    """matplotlib.pyplot on the non-interactive Agg backend, or :class:`AobakeError`
-    naming the extra to install (matplotlib is optional)."""
-    try:
-        import matplotlib
 
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-        import matplotlib.ticker  # noqa: F401  (plots set tick formatters)
-    except ImportError as exc:
-        raise AobakeError("plotting needs matplotlib: pip install 'aobake[plot]'") from exc
-    return plt
+#: Longest foreign error text kept in a one-line message.
+_REASON_CHARS = 160
+
+
+def short_reason(exc: BaseException) -> str:
+    """A foreign exception's message on one short line (USD's Tf errors reduced to their text)."""
+    text = str(exc)
+    tf_messages = re.findall(
+        r"Error in '[^']*' at line \d+ in file [^:]* : '(.*?)'(?=\s*(?:Error in|$))", text, re.S
+    )
+    if tf_messages:
+        text = tf_messages[0]
+    text = " ".join(text.split()) or type(exc).__name__
+    if len(text) > _REASON_CHARS:
+        text = text[: _REASON_CHARS - 3] + "..."
+    return text
+
+
+def decode_text(
+    path: Path, data: bytes, fmt: str, problem: str = "binary data, not a text file"
+) -> str:
+    """Text of a text format, or :class:`InputError` when the bytes are binary."""
+    problem = f"cannot read as {fmt}: {problem}"
+    if b"\x00" in data:
+        raise InputError(path, problem)
+    try:
+        return data.decode("utf-8-sig")
+    except UnicodeDecodeError:
+        text = data.decode("latin-1")  # legacy exporters write latin-1 names and comments
+    if re.search(r"[\x01-\x08\x0e-\x1f\x7f]", text):
+        raise InputError(path, problem)
+    return text

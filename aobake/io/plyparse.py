@@ -1,18 +1,13 @@
 """The one PLY parser: ASCII and binary (both byte orders), any elements and properties.
 
-Layer 2: imports numpy and aobake's ``errors`` only. :mod:`aobake.readers` reads meshes
-through it and :mod:`aobake.io_ply` reads ``ao`` back through it.
+Imports numpy and aobake's ``errors`` only; :mod:`aobake.io.ply` reads meshes and ``ao``
+through it. Not trimesh's reader: trimesh 5.2 misreads binary faces of mixed polygon
+sizes and accepts truncated ASCII PLY as a smaller mesh.
 
-Why not trimesh or plyfile: trimesh 5.2 silently misreads binary PLY whose faces mix
-polygon sizes (it takes every list length from the first face) and accepts truncated
-ASCII PLY as a smaller mesh; plyfile is only a test dependency. The format is small: a text
-header, then each element's rows in order. Rows without list properties (vertices,
-nearly always) and rows whose lists all keep the first row's length (triangle meshes)
-are read in one ``np.frombuffer`` with a structured dtype; only elements whose list
-lengths vary are walked row by row, and even then only to find the lengths: the values
-are gathered with numpy afterwards.
-
-Every failure is an :class:`~aobake.errors.InputError` with a one-line message starting
+Rows without list properties, and rows whose lists all keep the first row's length, are
+read in one ``np.frombuffer`` with a structured dtype; only elements whose list lengths
+vary are walked row by row, and then only to find the lengths. Every failure is an
+:class:`~aobake.errors.InputError` with a one-line message starting
 ``"<file>: cannot read as PLY: "``.
 """
 
@@ -27,7 +22,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .errors import InputError
+from ..errors import InputError
 
 #: PLY scalar type names (both spellings of the spec) and their numpy codes.
 PLY_TYPES = {
