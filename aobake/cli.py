@@ -13,6 +13,7 @@ from pathlib import Path
 import click
 
 from .errors import AobakeError
+from .methods import METHODS
 
 AO_CONVENTION = "The attribute `ao` holds 1 - A, the ambient factor (1 = fully open, 0 = fully occluded)."
 
@@ -70,14 +71,14 @@ class FieldSpec(click.ParamType):
 
 
 def common_options(f):
-    """--seed, --threads, --quiet: shared by every command that computes."""
+    """--seed, --threads, --quiet: shared by every command that computes (seed and threads
+    as :mod:`aobake.options` defines them)."""
+    from .options import seed_option, threads_option
+
     f = click.option("--quiet", "-q", is_flag=True, help="No progress bar or summary on stderr.")(f)
-    f = click.option(
-        "--threads", type=click.IntRange(min=1), default=None, help="Worker threads [default: all cores]."
-    )(f)
-    f = click.option(
-        "--seed", type=click.IntRange(0, 2**63 - 1), default=0, show_default=True, help="Random seed."
-    )(f)
+    for name, field in (("threads", threads_option()), ("seed", seed_option())):
+        spec = field.metadata["spec"]
+        f = _option(name, spec, field.default, default_value=field.default)(f)
     return f
 
 
@@ -91,34 +92,86 @@ def main():
     """
 
 
-# Options each --method takes (library keyword names); "seed" is silently unused by bunnell.
-METHOD_OPTIONS = {
-    "embree": ("n_rays", "measure", "max_distance", "bias", "seed", "tolerance", "threads"),
-    "bunnell": ("measure", "max_distance", "passes", "theta", "near", "directional", "threads"),
-}
-FLAGS = {"n_rays": "--rays"}
+def _click_type(spec):
+    """The click type of an option field (:class:`aobake.options.Spec`)."""
+    if spec.choices is not None:
+        return click.Choice(list(spec.choices))
+    if spec.kind in (int, float):
+        kind = click.IntRange if spec.kind is int else click.FloatRange
+        return kind(min=spec.low, max=spec.high, min_open=spec.low_open, max_open=spec.high_open)
+    return spec.kind
 
 
-def _method_options(method: str, **given) -> dict:
-    """The options ``method`` takes; a usage error for one set on the command line that it
-    does not take. Options left at a default of None are not passed, so the library's
-    defaults apply."""
-    ctx = click.get_current_context()
-    source = {"n_rays": "rays"}
-    wanted = METHOD_OPTIONS[method]
-    out = {}
+def _method_fields() -> dict:
+    """``{field: (Spec, default, methods that take it)}`` over every method's options class,
+    in the order the classes list them (seed and threads are common options)."""
+    from .methods import METHODS, options_class
+    from .options import specs
+
+    fields = {}
+    for method in METHODS:
+        for name, (spec, default) in specs(options_class(method)).items():
+            if name not in ("seed", "threads"):
+                fields.setdefault(name, (spec, default, []))[2].append(method)
+    return fields
+
+
+def _shown(spec, default) -> str:
+    """A field's default as ``--help`` shows it: "2", "on", "unbounded"."""
+    if default is None:
+        return spec.none or "none"
+    if spec.kind is bool:
+        return "on" if default else "off"
+    return f"{default:g}" if spec.kind is float else str(default)
+
+
+def _option(name: str, spec, default, *, default_value=None, text: str | None = None):
+    """The click option of an option field (flag, type, help and shown default from it)."""
+    from .options import flag
+
+    decl = flag(name, spec)
+    if spec.kind is bool:
+        decl = f"{decl}/--no-{decl[2:]}"
+    text = text or spec.help
+    if default_value is None:  # click would show the None: say what it stands for
+        text += f" [default: {_shown(spec, default)}]"
+    return click.option(
+        decl,
+        name,
+        type=None if spec.kind is bool else _click_type(spec),
+        default=default_value,
+        show_default=default_value is not None,
+        help=text,
+    )
+
+
+def method_options(f):
+    """One option per field of the methods' options classes: flag, type, default and help
+    come from the classes (each spelled once there). Their value here is None unless the
+    user sets one, so the command can tell what was set; the method's class fills in the
+    rest."""
+    from .methods import METHODS
+
+    for name, (spec, default, owners) in reversed(_method_fields().items()):
+        text = spec.help if len(owners) == len(METHODS) else f"{'/'.join(owners)}: {spec.help}"
+        f = _option(name, spec, default, text=text)(f)
+    return f
+
+
+def _method_options(method: str, given: dict, common: dict) -> dict:
+    """What the user set that ``method`` takes: a usage error for a method option it does
+    not take; the ``common`` ones (seed, threads) go only to the methods that take them."""
+    from .methods import options_class
+    from .options import flag, specs
+
+    fields = _method_fields()
+    takes = specs(options_class(method))
+    out = {k: v for k, v in common.items() if k in takes and v is not None}
     for name, value in given.items():
-        explicit = ctx.get_parameter_source(source.get(name, name)) not in (
-            click.core.ParameterSource.DEFAULT,
-            click.core.ParameterSource.DEFAULT_MAP,
-        )
-        if name not in wanted:
-            if explicit and name != "seed":
-                flag = FLAGS.get(name, "--" + name.replace("_", "-"))
-                raise click.UsageError(f"{flag} does not apply to --method {method}")
-            continue
         if value is None:
             continue
+        if name not in takes:
+            raise click.UsageError(f"{flag(name, fields[name][0])} does not apply to --method {method}")
         out[name] = value
     return out
 
@@ -135,55 +188,12 @@ def _method_options(method: str, **given) -> dict:
 )
 @click.option(
     "--method",
-    type=click.Choice(["embree", "bunnell"]),
-    default="embree",
+    type=click.Choice(METHODS),
+    default=METHODS[0],
     show_default=True,
     help="embree: ray casting (the reference); bunnell: disk and polygon form factors, no rays.",
 )
-@click.option("--rays", type=click.IntRange(min=1), default=256, show_default=True, help="Rays per vertex (max).")
-@click.option(
-    "--measure",
-    type=click.Choice(["cosine", "uniform"]),
-    default="cosine",
-    show_default=True,
-    help="cosine: 1/pi int V cos; uniform: solid-angle fraction.",
-)
-@click.option(
-    "--max-distance", type=click.FloatRange(min=0, min_open=True), default=None, help="Ray length limit (mesh units)."
-)
-@click.option(
-    "--bias",
-    type=click.FloatRange(min=0),
-    default=None,
-    help="Ray origin offset (mesh units) [default: from float precision and edge length].",
-)
-@click.option(
-    "--tolerance",
-    type=click.FloatRange(min=0, min_open=True),
-    default=None,
-    help="Adaptive: stop a vertex once its 95% interval half-width is below this.",
-)
-@click.option(
-    "--passes", type=click.IntRange(min=1), default=None, help="bunnell: occlusion passes [default: 1]."
-)
-@click.option(
-    "--theta",
-    type=click.FloatRange(min=0, min_open=True),
-    default=None,
-    help="bunnell: opening parameter of the disk tree (larger = slower, more exact) [default: 2].",
-)
-@click.option(
-    "--near",
-    type=click.FloatRange(min=0),
-    default=None,
-    help="bunnell: disks closer than sqrt(NEAR * area) become exact polygons (0 = disks only) [default: 4].",
-)
-@click.option(
-    "--directional/--no-directional",
-    default=None,
-    help="bunnell: per-direction saturation, layers stacked in one direction count once "
-    "[default: on; off = the plain sum].",
-)
+@method_options
 @click.option("--color", is_flag=True, help="Also write ao as grey vertex colours.")
 @click.option(
     "--up", type=click.Choice(["Y", "Z"]), default=None, help="USD stage up axis [default: the input's, else Y]."
@@ -204,10 +214,7 @@ def _method_options(method: str, **given) -> dict:
     "Repeatable; each multiplies ao by its 1 - A_k.",
 )
 @common_options
-def bake(
-    mesh, output, method, rays, measure, max_distance, bias, tolerance, passes, theta, near, directional,
-    color, up, meters_per_unit, fields, seed, threads, quiet
-):
+def bake(mesh, output, method, color, up, meters_per_unit, fields, seed, threads, quiet, **given):
     """Bake AO of MESH into OUTPUT as the per-vertex attribute `ao`.
 
     `ao` = 1 - A: 1 = fully open, 0 = fully occluded. MESH: PLY, OBJ, STL, OFF,
@@ -226,11 +233,7 @@ def bake(
         meters_per_unit=meters_per_unit,
         progress=make_progress(quiet),
         fields=fields,
-        **_method_options(
-            method, n_rays=rays, measure=measure, max_distance=max_distance, bias=bias, seed=seed,
-            tolerance=tolerance, passes=passes, theta=theta, near=near, directional=directional,
-            threads=threads,
-        ),
+        **_method_options(method, given, {"seed": seed, "threads": threads}),
     )
     if not quiet:
         click.echo(report.summary(), err=True)

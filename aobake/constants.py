@@ -65,7 +65,7 @@ DEFAULT_METERS_PER_UNIT = 1.0
 # to be its own group, bounded for meshes made of thousands of loose pieces.
 MAX_CONTACT_GROUPS = 16
 
-# Disk method (aobake.bunnell, aobake.kernels.bunnell / hierarchy / polygon) ------------
+# Disk method (aobake.methods.bunnell, aobake.kernels.bunnell / hierarchy / polygon) ------------
 
 # Near field: a receiver closer to a triangle's plane than this many edge lengths
 # (sqrt(2 area)) sees the triangle edge-on and gets nothing from it. Relative, so scale
@@ -97,20 +97,15 @@ TREE_KEY_STEPS = 1 << 20
 # stack never holds more than ~log2(k) + 2 entries; 128 covers any k < 2**120.
 TREE_BUILD_STACK = 128
 
-# Opening the disk method's cluster tree (aobake.hierarchy.pack_nodes): a node whose disks'
-# normals disagree is a poor point emitter (one whose disks lie on two facing plates, or on
+# Opening the disk method's cluster tree (aobake.methods.bunnell.tree.pack_nodes): a node
+# whose disks' normals disagree is a poor point emitter (one whose disks lie on two facing plates, or on
 # both sides of a ball, has its centre in the empty space between them), so its opening
 # distance grows with the disagreement: open_d2 = theta max(A, pi b^2) (1 + OPEN_COHERENCE
-# (1 - |sum A m| / sum A)). Measured at theta 2 (bench/bench_bunnell.py's "published
-# opening" rows for 0; the other factors in one-off runs on the same scenes): 0 (the
-# published criterion) 700k spheres 0.022, 700k bunny scene 0.023, facing plates 0.018
-# (tree against exact sum: 0.014); 1: 0.019, 0.020, plates' tree error 0.004; 3: 0.017,
-# 0.018, plates 0.005 (tree error 0.0005) at 13% more time per pass (interleaved runs;
-# on the 700k scenes the trade theta 3 makes, on facing surfaces much better); 6 no better
-# on the small scenes.
+# (1 - |sum A m| / sum A)). 0 is the published criterion; 3 is more accurate on every
+# bench scene for a little more time per pass (docs/bunnell.md).
 OPEN_COHERENCE = 3.0
 
-# Passes >= 2 (aobake.bunnell): an emitter at distance r from a receiver is weighted by its
+# Passes >= 2 (aobake.methods.bunnell.passes): an emitter at distance r from a receiver is weighted by its
 # own accessibility from the geometry within PASS_REACH * r of it, read off distance bins
 # with these outer radii (normalised units: the scene's largest extent is 1). A factor of
 # 4 between bins was as accurate as 2 on the bench scenes at half the bins; the last
@@ -122,10 +117,10 @@ PASS_RADII = (0.005, 0.02, 0.08, 0.32, 1.28, 5.12)
 # in front of it: by min(1, h / (PASS_GATE_WIDTH r)), h = that centroid's height above
 # the plane, r = the receiver-emitter distance. Occluders behind the receiver's plane (the
 # receiver's own surface: the facing plate, the ball above its shadow) hide nothing from
-# it. Measured in bench/bench_bunnell.py: widths 0.02 and 0.1 within 0.001 RMSE.
+# it. Widths 0.02 to 0.1 give the same accuracy (docs/bunnell.md).
 PASS_GATE_WIDTH = 0.1
 
-# Per-direction saturation (aobake.bunnell, cosine measure): each receiver's disk and
+# Per-direction saturation (aobake.methods.bunnell, cosine measure): each receiver's disk and
 # cluster terms are spread over DIRECTION_SECTORS azimuth sectors x 2 elevation bands of
 # equal cosine-weighted measure (1 / (2 S) each) and no band holds more than it can: where
 # stacked layers (a ball behind a ball, the floor seen through a body) overfill a bin the
@@ -133,8 +128,7 @@ PASS_GATE_WIDTH = 0.1
 # cluster with area A >= DIRECTION_WIDE r^2, whose term A cos cos / (pi r^2 + A) may not
 # fit the (at most 4) bins it is spread over: below DIRECTION_WIDE = 1 a term is at most
 # 1 / (pi + 1) = 0.24 < 4 / 16 (without this, the contact vertex of two touching balls
-# read ao 0.875 with disks only, where the truth is 0). Measured in bench/bench_bunnell.py: 0.1 undid
-# most of the gain (700k spheres at theta 2: RMSE 0.062, its far clusters reach A = r^2 /
-# 2), 0.3 and 1 within 0.001; 4 sectors 0.025 vs 8 sectors 0.016 (theta 4).
+# read ao 0.875 with disks only, where the truth is 0). Smaller DIRECTION_WIDE undoes the
+# gain; 8 sectors beat 4 (docs/bunnell.md).
 DIRECTION_SECTORS = 8
 DIRECTION_WIDE = 1.0

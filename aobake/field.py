@@ -548,7 +548,7 @@ def fit_field(
     if not (math.isfinite(r_far) and r_far > radius):
         raise InputError(surface.source, f"r_far {r_far:.6g} must exceed the occluder's bounding radius {radius:.6g}")
 
-    from .bunnell import numba_threads
+    from .checks import numba_threads
 
     res = resolution
     n_side = res + 2
@@ -767,7 +767,7 @@ def fields_ao(
     The product is exact only when the occluders block uncorrelated sets of directions
     (Kontkanen & Laine, section 5): overlapping occluders come out too dark.
     """
-    from .bunnell import numba_threads
+    from .checks import numba_threads
 
     t0 = time.perf_counter()
     fields = list(fields)

@@ -89,16 +89,10 @@ def as_surface(mesh: Any) -> Surface:
 
 
 def _compute(surface: Surface, method: str, options: dict, progress: Progress | None):
-    if method == "embree":
-        from .methods.embree import embree_ao
+    from .methods import run
 
-        result = embree_ao(surface, progress=progress, **options)
-        return result.ao, result.n_rays, result.contacts
-    if method == "bunnell":
-        from .bunnell import bunnell_ao
-
-        return bunnell_ao(surface, progress=progress, **options), 0, 0
-    raise ValueError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
+    result = run(method, surface, options, progress)
+    return result.ao, result.n_rays, result.contacts
 
 
 def bake(mesh: Any, method: str = "embree", *, progress: Progress | None = None, **options) -> AOArray:
@@ -111,7 +105,7 @@ def bake(mesh: Any, method: str = "embree", *, progress: Progress | None = None,
     method : {"embree", "bunnell"}
         ``"embree"``: Monte Carlo ray casting (the reference). ``"bunnell"``: summed disk
         and polygon form factors over a cluster tree, no rays
-        (:func:`aobake.bunnell.bunnell_ao`: ``passes``, ``theta``, ``near``, ...).
+        (:func:`aobake.methods.bunnell.bunnell_ao`: ``passes``, ``theta``, ``near``, ...).
     progress : Progress, optional
     **options
         Passed to the method, e.g. ``n_rays``, ``measure``, ``max_distance``, ``bias``,

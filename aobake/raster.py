@@ -128,7 +128,7 @@ def raster_occlusion(
     Coordinates are recentred on the occluder's bounding-box centre in float64. A
     triangle through the point itself covers nothing (it projects to a line).
     """
-    from .bunnell import numba_threads
+    from .checks import numba_threads
 
     size = int(size)
     if size < 1:

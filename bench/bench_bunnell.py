@@ -1,4 +1,4 @@
-"""Benchmark of the disk method (aobake.bunnell) and the hybrid (aobake.hybrid).
+"""Benchmark of the disk method (aobake.methods.bunnell).
 
 Prints Markdown tables measured in one run (not a test; the only assertion checks that
 the split timing of one pass reproduces ``occlusion_passes``):
@@ -7,7 +7,7 @@ the split timing of one pass reproduces ``occlusion_passes``):
    ~700k-vertex scene of bench/common.py: RMSE / p99 / bias of ``ao`` against Embree
    with 1024 rays, and time, for the published method (disks, front faces), each
    fix on top of it, passes 1-4 and their combinations, a few theta and near-field
-   sizes, the hybrid, and Embree at 16 / 64 / 256 rays on the same mesh;
+   sizes, and Embree at 16 / 64 / 256 rays on the same mesh;
 2. speed on the ~700k scene: build, the per-bake setup of the passes and the time per
    pass (wall and CPU; a pass is what every further pass costs again) for theta / near
    / leaf size, against the exact sum on a random subset of receivers;
@@ -39,15 +39,21 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 sys.path.insert(0, str(HERE.parent / "tests"))
 
-from aobake import bunnell as B  # noqa: E402
-from aobake import hierarchy as H  # noqa: E402
-from aobake.hybrid import hybrid_ao  # noqa: E402
+from aobake.constants import MEASURE_CODES  # noqa: E402
+from aobake.methods import bunnell as B  # noqa: E402
+from aobake.methods.bunnell import BunnellOptions  # noqa: E402
+from aobake.methods.bunnell import passes as P  # noqa: E402
+from aobake.methods.bunnell import tree as H  # noqa: E402
 from aobake.kernels import bunnell as K  # noqa: E402
-from aobake.raytrace import embree_ao  # noqa: E402
+from aobake.methods.embree import embree_ao  # noqa: E402
+from aobake.progress import NullProgress  # noqa: E402
 
 import common  # noqa: E402
 
 REF_RAYS = 1024
+# The opening parameter of the plain-sum rows (no per-direction saturation).
+PLAIN_THETA = 4.0
+DEFAULTS = BunnellOptions()
 
 
 def reference(name: str, surface) -> np.ndarray:
@@ -101,21 +107,21 @@ def one_pass(elements, tree, repeats, **kw):
     bounds; paid once however many passes) and the pass itself (``_Pass.sums``, what
     every further pass costs again). Returns (occlusion, setup s, pass s, pass CPU s),
     best of ``repeats`` each; the occlusion is checked against occlusion_passes'."""
-    theta = kw.get("theta", B.DEFAULT_THETA)
-    near = kw.get("near", B.DEFAULT_NEAR)
+    theta = kw.get("theta", DEFAULTS.theta)
+    near = kw.get("near", DEFAULTS.near)
     directional = kw.get("directional", True)
     n = elements.n_vertices
 
     def setup():
-        return B._Pass(elements, tree, theta, near, B.MEASURES["cosine"], np.inf,
+        return P._Pass(elements, tree, theta, near, MEASURE_CODES["cosine"], np.inf,
                        directional=directional)
 
     job, t_setup, _ = run(setup, repeats)
     sums, t_pass, c_pass = run(
-        lambda: job.sums(np.ones((n, K.N_LEVELS)), B.NullProgress(), np.ones(n))[0], repeats
+        lambda: job.sums(np.ones((n, K.N_LEVELS)), NullProgress(), np.ones(n))[0], repeats
     )
     occ = np.clip(B.combine_sides(sums[:, :, -1]), 0.0, 1.0)
-    whole = B.occlusion_passes(elements, tree, theta=theta, near=near, directional=directional)[0]
+    whole = B.occlusion_passes(elements, tree, BunnellOptions(theta=theta, near=near, directional=directional))[0]
     assert np.array_equal(occ, whole), "one_pass drifted from occlusion_passes"
     return occ, t_setup, t_pass, c_pass
 
@@ -128,7 +134,7 @@ def published_opening(**kw):
         saved = H.OPEN_COHERENCE
         H.OPEN_COHERENCE = 0.0
         try:
-            return B.bunnell_ao(surface, **kw)
+            return B.variant_ao(surface, **kw)
         finally:
             H.OPEN_COHERENCE = saved
 
@@ -138,7 +144,7 @@ def published_opening(**kw):
 def variants(n_vertices: int):
     """(label, callable(surface) -> ao, passes) of every row of the accuracy table."""
     big = n_vertices > 50_000
-    plain = dict(directional=False, theta=B.PLAIN_THETA)  # the sums before saturation
+    plain = dict(directional=False, theta=PLAIN_THETA)  # the sums before saturation
     rows = [
         ("published: disks, front faces (near 0), plain sums", dict(near=0.0, sides="front", **plain)),
         ("+ cells (near 4), front faces", dict(sides="front", **plain)),
@@ -177,14 +183,9 @@ def variants(n_vertices: int):
         ("plain: passes 3, Bunnell's weights, hoberock blend", dict(passes=3, pass_reach=np.inf, gate=0.0, combine="hoberock", **plain)),
         ("published, passes 2, bunnell blend", dict(near=0.0, sides="front", passes=2, pass_reach=np.inf, gate=0.0, combine="bunnell", **plain)),
     ]
-    out = [(label, (lambda s, kw=kw: B.bunnell_ao(s, **kw)), kw.get("passes", 1)) for label, kw in rows]
+    out = [(label, (lambda s, kw=kw: B.variant_ao(s, **kw)), kw.get("passes", 1)) for label, kw in rows]
     out.insert(4, ("default, published opening (OPEN_COHERENCE 0)", published_opening(), 1))
     out.insert(5, ("passes 2, published opening", published_opening(passes=2), 2))
-    out += [
-        ("hybrid: 16 rays, reach 4, sum", lambda s: hybrid_ao(s).ao, 1),
-        ("hybrid: 16 rays, reach 4, product", lambda s: hybrid_ao(s, combine="product").ao, 1),
-        ("hybrid: 64 rays, reach 4, sum", lambda s: hybrid_ao(s, n_rays=64).ao, 1),
-    ]
     out += [(f"embree {n} rays", (lambda s, n=n: embree_ao(s, n_rays=n, seed=1).ao), 1) for n in (16, 64, 256)]
     return out
 
@@ -227,7 +228,7 @@ def section_accuracy(all_scenes, repeats):
 
 def exact_subset(elements, subset, near, directional=True):
     """Exact pass-1 occlusion (max rule) at ``subset`` receivers (brute force)."""
-    job = B._Pass(elements, None, B.DEFAULT_THETA, near, K.MEASURE_COSINE, np.inf,
+    job = P._Pass(elements, None, DEFAULTS.theta, near, K.MEASURE_COSINE, np.inf,
                   directional=directional)
     out = np.zeros((elements.n_vertices, 2, K.N_BINS))
     ones = np.ones(elements.n_vertices)
@@ -257,7 +258,7 @@ def section_speed(surface, desc, repeats, n_check):
         for directional in (True, False):
             for theta in (2.0, 4.0, 8.0):
                 for nu in (0.0, 4.0):
-                    if leaf != B.DEFAULT_LEAF_SIZE and (theta != B.DEFAULT_THETA or not directional):
+                    if leaf != P.DEFAULT_LEAF_SIZE and (theta != DEFAULTS.theta or not directional):
                         continue
                     occ, t0, t1, c1 = one_pass(elements, tree, repeats, theta=theta, near=nu,
                                                directional=directional)
@@ -274,13 +275,13 @@ def section_speed(surface, desc, repeats, n_check):
         [[str(c) for c in r] for r in rows],
     ))
     for passes in (1, 2):
-        _, t_all, c_all = run(lambda passes=passes: B.bunnell_ao(surface, passes=passes), repeats)
+        _, t_all, c_all = run(lambda passes=passes: B.variant_ao(surface, passes=passes), repeats)
         print(f"\nbunnell_ao, passes={passes}, everything included: {t_all:.2f} s (CPU {c_all:.2f} s)")
 
 
 def section_scaling(threads, repeats):
-    print(f"\n## 3. Scaling at the defaults (theta {B.DEFAULT_THETA:g}, near {B.DEFAULT_NEAR:g}, "
-          f"leaf {B.DEFAULT_LEAF_SIZE})\n")
+    print(f"\n## 3. Scaling at the defaults (theta {DEFAULTS.theta:g}, near {DEFAULTS.near:g}, "
+          f"leaf {P.DEFAULT_LEAF_SIZE})\n")
     rows = []
     prev = None
     for n_target in (44_000, 175_000, 700_000):
@@ -305,17 +306,16 @@ def section_scaling(threads, repeats):
 def contenders(surface):
     """The big-scene round-robin: the defaults, the plain sums, Embree at 16 and 64 rays."""
     return {
-        "bunnell published (near 0, front faces, plain sums)": lambda: B.bunnell_ao(
-            surface, near=0.0, sides="front", directional=False, theta=B.PLAIN_THETA),
-        "bunnell --no-directional --theta 4 (plain sums)": lambda: B.bunnell_ao(
-            surface, directional=False, theta=B.PLAIN_THETA),
-        "bunnell --no-directional --theta 4 --passes 2": lambda: B.bunnell_ao(
-            surface, directional=False, theta=B.PLAIN_THETA, passes=2),
+        "bunnell published (near 0, front faces, plain sums)": lambda: B.variant_ao(
+            surface, near=0.0, sides="front", directional=False, theta=PLAIN_THETA),
+        "bunnell --no-directional --theta 4 (plain sums)": lambda: B.variant_ao(
+            surface, directional=False, theta=PLAIN_THETA),
+        "bunnell --no-directional --theta 4 --passes 2": lambda: B.variant_ao(
+            surface, directional=False, theta=PLAIN_THETA, passes=2),
         "bunnell default, published opening (OPEN_COHERENCE 0)": lambda: published_opening()(surface),
-        "bunnell default (saturation, theta 2)": lambda: B.bunnell_ao(surface),
-        "bunnell --theta 1.5": lambda: B.bunnell_ao(surface, theta=1.5),
-        "bunnell --theta 4": lambda: B.bunnell_ao(surface, theta=4.0),
-        "hybrid (16 rays, reach 4)": lambda: hybrid_ao(surface).ao,
+        "bunnell default (saturation, theta 2)": lambda: B.variant_ao(surface),
+        "bunnell --theta 1.5": lambda: B.variant_ao(surface, theta=1.5),
+        "bunnell --theta 4": lambda: B.variant_ao(surface, theta=4.0),
         "embree 16 rays": lambda: embree_ao(surface, n_rays=16, seed=1).ao,
         "embree 64 rays": lambda: embree_ao(surface, n_rays=64, seed=1).ao,
     }
@@ -387,8 +387,7 @@ def main():
     print("# bench_bunnell\n")
     for label, value in common.machine_facts():
         print(f"- {label}: {value}")
-    B.bunnell_ao(common.spheres_on_ground(25_000)[0])  # compile
-    hybrid_ao(common.spheres_on_ground(25_000)[0])
+    B.variant_ao(common.spheres_on_ground(25_000)[0])  # compile
     all_scenes, desc = scenes(args.quick)
     if "1" in args.sections:
         section_accuracy(all_scenes, args.repeats)

@@ -205,3 +205,38 @@ def test_interrupt_leaves_no_output(tmp_path):
     assert proc.returncode != 0
     assert "Traceback" not in err and err.strip().count("\n") == 0
     assert _files(tmp_path) == ["big.ply"]
+
+
+@pytest.mark.parametrize("method", ["embree", "bunnell"])
+def test_bake_options_come_from_the_method_options_class(runner, monkeypatch, scene_ply, tmp_path, method):
+    """Every field of a method's options class is a `bake` flag whose help shows the
+    class's default; a value set on the command line reaches the method's options, and
+    the fields left unset keep the class's defaults."""
+    import aobake.methods as methods
+    from aobake.options import flag, specs
+
+    cls = methods.options_class(method)
+    text = " ".join(runner.invoke(main, ["bake", "--help"], terminal_width=1000).output.split())
+    from aobake.cli import _shown
+
+    for name, (spec, default) in specs(cls).items():
+        assert flag(name, spec) in text, name
+        if name not in ("seed", "threads"):
+            assert f"{spec.help} [default: {_shown(spec, default)}]" in text, name
+    seen = {}
+    original = methods.run
+
+    def spy(name, surface, options=None, progress=None, **changes):
+        seen["options"] = methods.make_options(name, options, **changes)
+        return original(name, surface, options, progress, **changes)
+
+    monkeypatch.setattr(methods, "run", spy)
+    given = {"embree": ["--rays", "8", "--max-distance", "0.5"], "bunnell": ["--theta", "3", "--max-distance", "0.5"]}
+    out = tmp_path / "o.ply"
+    result = runner.invoke(main, ["bake", str(scene_ply), "-o", str(out), "--method", method, "-q", *given[method]])
+    assert result.exit_code == 0, result.output
+    got = seen["options"]
+    assert got.max_distance == 0.5
+    assert (got.n_rays == 8) if method == "embree" else (got.theta == 3.0)
+    untouched = {"embree": "tolerance", "bunnell": "passes"}[method]
+    assert getattr(got, untouched) == getattr(cls(), untouched)

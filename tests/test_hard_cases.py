@@ -10,7 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from aobake.bunnell import bunnell_ao
+from aobake.methods.bunnell import bunnell_ao
 from aobake.field import field_ao, fit_field, rigid_transform
 from aobake.mesh import surface_from_arrays
 from aobake.methods.embree import embree_ao

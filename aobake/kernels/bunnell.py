@@ -15,7 +15,7 @@ Symbols used in every docstring below (same names as the code):
   the receiver), ``cos_r = n.d / r``.
 
 Every kernel returns two unsaturated sums per receiver, ``front`` (emitters whose front
-side faces it) and ``back``; the caller combines them (``aobake.bunnell``).
+side faces it) and ``back``; the caller combines them (``aobake.methods.bunnell.passes``).
 """
 
 from __future__ import annotations
@@ -66,7 +66,7 @@ NO_NORMAL_UNIFORM = 0.5
 # the emitter's distance r from the receiver, when asked to: N_BINS cumulative bins, bin
 # b summing the emitters with ``r < PASS_RADII[b]`` (normalised units); pass k >= 2
 # weights an emitter at distance r by its weight at level ``#{b : r2 >= weight_r2[b]}``
-# (N_LEVELS = N_BINS + 1 levels, level 0 = weight 1), see ``aobake.bunnell``.
+# (N_LEVELS = N_BINS + 1 levels, level 0 = weight 1), see ``aobake.methods.bunnell.passes``.
 N_BINS = len(PASS_RADII)
 N_LEVELS = N_BINS + 1
 

@@ -10,9 +10,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ._types import FloatArray, IndexArray
-from .constants import OPEN_COHERENCE, TREE_KEY_STEPS
-from .kernels import hierarchy as _k
+from ..._types import FloatArray, IndexArray
+from ...constants import OPEN_COHERENCE, TREE_KEY_STEPS
+from ...kernels import hierarchy as _k
 
 
 @dataclass(frozen=True)

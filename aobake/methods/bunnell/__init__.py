@@ -1,0 +1,39 @@
+"""Bunnell's disk method: oriented disks per vertex, a cluster tree, occlusion passes; no rays.
+
+``elements`` (the disks), ``tree`` (the cluster tree), ``passes`` (the sums and the pass
+scheme), ``estimator`` (the entry points). Importing this package loads only its
+options; numpy and the kernels load on first use.
+"""
+
+from __future__ import annotations
+
+import importlib
+
+from .options import BunnellOptions
+
+__all__ = ["BunnellOptions", "bunnell_ao", "run"]
+
+# public and test-facing names -> the module that defines them
+_LAZY = {
+    "bunnell_ao": "estimator",
+    "run": "estimator",
+    "estimate": "estimator",
+    "variant_ao": "estimator",
+    "DiskElements": "elements",
+    "build_elements": "elements",
+    "ClusterTree": "tree",
+    "refit_tree": "tree",
+    "Scheme": "passes",
+    "build_tree": "passes",
+    "combine_passes": "passes",
+    "combine_sides": "passes",
+    "occlusion_passes": "passes",
+    "settings": "passes",
+}
+
+
+def __getattr__(name: str):
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    return getattr(importlib.import_module(f"{__name__}.{module}"), name)

@@ -1,0 +1,587 @@
+"""The disk method's passes: sums of disk and cell form factors over the cluster tree,
+saturated per pass, with later passes removing double shadows.
+
+Numpy-facing: coerces dtypes once and calls the compiled loops in
+``aobake.kernels.bunnell`` (``_k.*``) and ``aobake.kernels.treepass`` (``_tp.*``).
+Contains no @njit code and never prints. :class:`Scheme` holds the pass scheme's
+internal switches: fixed for users, turned by the tests and the bench to compare the
+published schemes with ours.
+
+References
+----------
+M. Bunnell, "Dynamic Ambient Occlusion and Indirect Lighting", GPU Gems 2, ch. 14 (2005).
+J. Hoberock and Y. Jia, "High-Quality Ambient Occlusion", GPU Gems 3, ch. 12 (2007).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields
+
+import numpy as np
+
+from ..._types import AOArray, FloatArray, IndexArray
+from ...checks import check_result, numba_threads
+from ...constants import MEASURE_CODES, PASS_GATE_WIDTH, PASS_RADII
+from ...kernels import bunnell as _k
+from ...kernels import hierarchy as _h
+from ...kernels import polygon as _poly
+from ...kernels import treepass as _tp
+from ...options import option, validate
+from ...progress import NullProgress, Progress
+from .elements import DiskElements
+from .options import BunnellOptions
+from .tree import ClusterTree, node_coherence, pack_nodes, tree_keys
+from .tree import build_tree as _build_tree
+
+__all__ = [
+    "Scheme",
+    "build_tree",
+    "combine_passes",
+    "combine_sides",
+    "occlusion_passes",
+    "settings",
+]
+
+# Passes >= 2 with a tree: passes 2..K are evaluated at one vertex per tree leaf (the one
+# nearest its centre), and what they remove is carried over to the leaf's vertices with a
+# normal within arccos(SHARE_COS) of its own; the others are evaluated themselves.
+SHARE_COS = 0.9
+# Emitters per leaf (and receivers per bucket): 16 to 64 cost about the same per pass;
+# 32 and 64 are more accurate than 16 (docs/bunnell.md).
+DEFAULT_LEAF_SIZE = 32
+# The default of Scheme.pass_reach (see there).
+DEFAULT_PASS_REACH = 0.5
+# Buckets per kernel call: only for progress reports and Ctrl-C latency.
+CHUNK_BUCKETS = 1 << 12
+
+
+@dataclass(frozen=True)
+class Scheme:
+    """The pass scheme's internal switches. The defaults are aobake's method; the others
+    are the published schemes and variants the bench compares it with (docs/bunnell.md).
+
+    Attributes
+    ----------
+    sides : {"max", "front"}
+        How the front and back sums make the occlusion (:func:`combine_sides`).
+    damping : float
+        Pass k weights disk j by ``1 - damping A_{k-1}(j; pass_reach r)``.
+    pass_reach : float
+        > 0, or inf (weights from the whole previous pass). ``damping=1,
+        pass_reach=inf, gate=0`` with ``near=0`` is Bunnell's published scheme.
+    gate : float
+        Width of the pass weights' gate (>= 0, 0 = ungated): see :func:`occlusion_passes`.
+    pass_fill : bool
+        Later passes remove occlusion from a direction bin only in proportion to how
+        empty pass 1 left it (with ``directional``).
+    share_passes : bool
+        With a tree: passes 2..K at one vertex per leaf and normal group only.
+    combine : {"last", "bunnell", "hoberock"}
+        How the passes make the result (:func:`combine_passes`).
+    leaf_size : int
+        Maximum disks per tree leaf.
+    """
+
+    sides: str = option("max", "front and back sums", kind=str, choices=("max", "front"))
+    damping: float = option(1.0, "pass weight damping", kind=float, low=0, low_open=True, high=1)
+    pass_reach: float = option(
+        DEFAULT_PASS_REACH, "reach of the pass weights", kind=float, low=0, low_open=True, finite=False
+    )
+    gate: float = option(PASS_GATE_WIDTH, "gate width", kind=float, low=0)
+    pass_fill: bool = option(True, "the fill rule", kind=bool)
+    share_passes: bool = option(True, "later passes at representatives", kind=bool)
+    combine: str = option(
+        "last", "how passes combine", kind=str, choices=("last", "bunnell", "hoberock")
+    )
+    leaf_size: int = option(DEFAULT_LEAF_SIZE, "disks per leaf", kind=int, low=1)
+
+    def __post_init__(self):
+        validate(self)
+
+
+def settings(**keywords) -> tuple[BunnellOptions, Scheme]:
+    """``(BunnellOptions, Scheme)`` from keywords of either (tests and the bench);
+    ``TypeError`` for a name neither has."""
+    names = {f.name for f in fields(BunnellOptions)}, {f.name for f in fields(Scheme)}
+    unknown = sorted(set(keywords) - names[0] - names[1])
+    if unknown:
+        raise TypeError(f"no option or scheme switch {unknown[0]!r}")
+    options = BunnellOptions(**{k: v for k, v in keywords.items() if k in names[0]})
+    scheme = Scheme(**{k: v for k, v in keywords.items() if k in names[1]})
+    if scheme.combine != "last" and options.passes < 2:
+        raise ValueError(
+            f"combine={scheme.combine!r} blends the last two passes and needs passes >= 2, "
+            f"got {options.passes}"
+        )
+    return options, scheme
+
+
+def build_tree(elements: DiskElements, *, leaf_size: int = DEFAULT_LEAF_SIZE) -> ClusterTree:
+    """Cluster tree over the casting disks (:func:`.tree.build_tree`).
+
+    Parameters
+    ----------
+    elements : DiskElements
+        With at least one casting disk.
+    leaf_size : int, optional
+        Maximum disks per leaf (>= 1).
+    """
+    if isinstance(leaf_size, bool) or not isinstance(leaf_size, (int, np.integer)) or leaf_size < 1:
+        raise ValueError(f"leaf_size must be an integer >= 1, got {leaf_size!r}")
+    if elements.n_emitters == 0:
+        raise ValueError("build_tree needs at least one casting disk (area > 0 and a normal)")
+    return _build_tree(
+        elements.positions, elements.areas, elements.emitter_index, leaf_size=leaf_size
+    )
+
+
+class _Pass:
+    """Kernel inputs of one (elements, tree, options) set, reused by every pass.
+
+    ``pass_reach``: weight levels for passes >= 2 (see :func:`occlusion_passes`).
+    """
+
+    def __init__(
+        self,
+        elements: DiskElements,
+        tree: ClusterTree | None,
+        theta,
+        near,
+        code,
+        reach,
+        inner=None,
+        pass_reach=DEFAULT_PASS_REACH,
+        gate=PASS_GATE_WIDTH,
+        directional=True,
+    ):
+        self.elements = elements
+        self.tree = tree
+        bin_r2 = np.asarray(PASS_RADII, dtype=np.float64) ** 2
+        with np.errstate(divide="ignore"):
+            weight_r2 = np.ascontiguousarray(bin_r2 / pass_reach**2)
+        self.options = (code, reach, near, False, bin_r2, weight_r2, False, float(gate), bool(directional))
+        inner = np.zeros(elements.n_vertices) if inner is None else inner
+        self.receivers = (
+            elements.points,
+            elements.normals,
+            np.ascontiguousarray(inner, dtype=np.float64),
+            np.full(elements.n_vertices, 2, dtype=np.uint8),
+        )
+        self.no_fill = _no_fill(elements.n_vertices)
+        if tree is None:
+            return
+        import numba
+
+        order = tree.order
+        self.perm, self.cells = _cells_in_tree_order(elements, order)
+        self.rows = np.zeros((order.shape[0], _h.EMITTER_COLS), dtype=np.float32)
+        _h.emitter_rows(elements.positions, elements.normals, elements.areas, order, self.rows)
+        self.weights = np.ones((order.shape[0], _k.N_LEVELS), dtype=np.float32)
+        self.occluders = np.zeros((order.shape[0], 3), dtype=np.float32)
+        coherence = node_coherence(tree, elements.normals, elements.areas)
+        self.nodes = pack_nodes(tree, theta=theta, near=near, coherence=coherence)
+        self.moments = np.zeros((tree.n_nodes, _k.N_LEVELS, _h.MOMENT_COLS), dtype=np.float32)
+        self.tree_args = (tree.skip, tree.start, tree.stop, self.nodes, self.moments)
+        self.emitters = (self.rows, order, self.weights, self.occluders)
+        recv_order, bucket_start = receiver_buckets(elements, tree)
+        bounds = np.zeros((bucket_start.shape[0] - 1, _tp.BOUND_COLS))
+        _tp.bucket_bounds(elements.points, elements.normals, self.receivers[2], recv_order,
+                          bucket_start, bounds)
+        slots = numba.config.NUMBA_NUM_THREADS
+        k, m = order.shape[0], tree.n_nodes
+        self.bucket_start = bucket_start
+        self.buckets = (
+            recv_order,
+            bucket_start,
+            bounds,
+            np.empty((slots, _tp.NEAR_ROWS, k), dtype=np.float32),
+            np.empty((slots, 2, k), dtype=np.int64),
+            np.empty((slots, _tp.FAR_ROWS, m), dtype=np.float32),
+        )
+
+    def sums(
+        self,
+        weights: FloatArray,
+        progress: Progress,
+        cell_weights=None,
+        binned: bool = False,
+        cache_mode: int = 0,
+        occluders=None,
+        modes=None,
+        fill=None,
+    ) -> tuple[FloatArray, FloatArray]:
+        """(n, 2, N_BINS) (front, back) sums, cumulative by distance when ``binned``
+        (else only the last bin, the total, less the direction excess when directional),
+        and (n, 4) first moments ``sum (front + back term) (emitter - receiver)`` and the
+        summed terms (when ``binned``, cache_mode < 2).
+
+        ``weights``: (n,) per-vertex disk weights, or (n, N_LEVELS) per weight level;
+        ``cell_weights``: (n,) near-field cell weights (default: the level-0 weights).
+        ``cache_mode`` (tree only): 1 keeps each receiver's cell sums, 2 reuses them (the
+        cell weights must not have changed), 0 neither. ``occluders``: (n, 3) occluder
+        centroids for gated weights (default: the vertices; unused unless leveled).
+        ``modes`` (tree only): (n,) uint8 per receiver, 0 skip (row 0), 1 total only, 2
+        binned when ``binned`` (default: all 2). ``fill``: ``(store, slot, mode)``, what
+        receivers do with their direction bins for later passes
+        (``kernels.bunnell.brute_force_pass``; default: nothing).
+        """
+        e = self.elements
+        n = e.n_vertices
+        weights = np.asarray(weights, dtype=np.float64)
+        if weights.ndim == 1:
+            weights = np.repeat(weights[:, None], _k.N_LEVELS, axis=1)
+        weights = np.ascontiguousarray(weights)
+        cell_weights = np.ascontiguousarray(weights[:, 0] if cell_weights is None else cell_weights)
+        leveled = bool(np.any(weights != weights[:, :1]))
+        options = self.options[:3] + (bool(binned),) + self.options[4:6] + (leveled,) + self.options[7:]
+        occluders = np.ascontiguousarray(e.positions if occluders is None else occluders)
+        out = np.zeros((n, 2, _k.N_BINS))
+        first = np.zeros((n, 4))
+        fill = self.no_fill if fill is None else fill
+        if self.tree is None:
+            disks = (e.positions, e.normals, e.areas, weights, occluders)
+            cells = (e.corner_start, e.corners, cell_weights)
+            everyone = np.arange(n, dtype=np.int64)
+            step = CHUNK_BUCKETS * DEFAULT_LEAF_SIZE
+            for lo in range(0, n, step):
+                chunk = everyone[lo : lo + step]
+                _k.brute_force_pass(
+                    disks, cells, e.emitter_index, self.receivers, chunk, options, out, first, fill
+                )
+                progress.advance(chunk.shape[0])
+            return out, first
+        # only what this pass reads: level 0 unless leveled, the occluders when gated
+        if leveled:
+            self.weights[:] = weights[self.tree.order]
+        else:
+            self.weights[:, 0] = weights[self.tree.order, 0]
+        if leveled and self.options[7] > 0.0:
+            self.occluders[:] = occluders[self.tree.order]
+        _h.refit_nodes(
+            self.rows,
+            self.weights,
+            self.occluders,
+            self.tree.skip,
+            self.tree.start,
+            self.tree.stop,
+            self.nodes,
+            self.moments,
+            leveled,
+        )
+        if cache_mode and not hasattr(self, "cache"):
+            self.cache = np.zeros((n, 2, _k.N_BINS))
+        cache = getattr(self, "cache", np.zeros((0, 2, _k.N_BINS)))
+        receivers = self.receivers
+        if modes is not None:
+            receivers = receivers[:3] + (np.ascontiguousarray(modes, dtype=np.uint8),)
+        # the near field in tree order (_cells_in_tree_order)
+        near_field = self.cells[:1] + (cell_weights[self.perm],) + self.cells[1:] + (cache, int(cache_mode))
+        buckets = self.buckets
+        bucket_start = buckets[1]
+        n_buckets = bucket_start.shape[0] - 1
+        import numba
+
+        threads = numba.get_num_threads()
+        for b0 in range(0, n_buckets, CHUNK_BUCKETS):
+            b1 = min(b0 + CHUNK_BUCKETS, n_buckets)
+            _tp.hierarchy_pass(
+                self.tree_args,
+                self.emitters,
+                receivers,
+                near_field,
+                buckets,
+                (b0, b1, threads),
+                options,
+                out,
+                first,
+                fill,
+            )
+            progress.advance(int(bucket_start[b1] - bucket_start[b0]))
+        return out, first
+
+
+def _no_fill(n: int) -> tuple:
+    """The kernels' ``fill`` argument when no receiver keeps or reads its bins."""
+    return (np.zeros((0, 2, 2 * _k.SECTORS)), np.full(n, -1, dtype=np.int64), _k.FILL_NONE)
+
+
+def _fills(n: int, keepers: IndexArray) -> tuple[tuple, tuple]:
+    """``fill`` arguments for pass 1 (``keepers`` keep their direction bins) and for the
+    later passes (they read them back: ``kernels.bunnell.refill``)."""
+    store = np.zeros((keepers.shape[0], 2, 2 * _k.SECTORS))
+    slot = np.full(n, -1, dtype=np.int64)
+    slot[keepers] = np.arange(keepers.shape[0])
+    return (store, slot, _k.FILL_KEEP), (store, slot, _k.FILL_GIVE)
+
+
+def _non_emitters(n: int, order: IndexArray) -> IndexArray:
+    """The vertices that are not in the tree (``order``: the emitters), ascending."""
+    casts = np.zeros(n, dtype=bool)
+    casts[order] = True
+    return np.flatnonzero(~casts)
+
+
+def _cells_in_tree_order(elements: DiskElements, order: IndexArray):
+    """``(perm, (positions, corner_start, corners))``: the vertices renumbered so that the
+    emitters come first in tree order ``order`` (then the others), with their positions
+    and cells (``polygon.permute_cells``). A receiver's near-field cells are its
+    neighbours' and their corners are near them: in tree order they are near in memory
+    too. (Meshes whose vertex order is scattered, a loop-subdivided scan for one, spent
+    3x longer on the same cells in mesh order.)"""
+    n = elements.n_vertices
+    perm = np.concatenate([order, _non_emitters(n, order)]).astype(np.int64)
+    inverse = np.empty(n, dtype=np.int64)
+    inverse[perm] = np.arange(n, dtype=np.int64)
+    start = np.zeros(n + 1, dtype=np.int64)
+    np.cumsum(np.diff(elements.corner_start)[perm], out=start[1:])
+    corners = np.empty_like(elements.corners)
+    reach = np.empty(n)
+    _poly.permute_cells(elements.positions, elements.corner_start, elements.corners, perm,
+                        inverse, start, corners, reach)
+    return perm, (np.ascontiguousarray(elements.positions[perm]), start, corners, reach)
+
+
+def pass_representatives(elements: DiskElements, tree: ClusterTree) -> IndexArray:
+    """(n,) vertex whose later passes each vertex takes (itself for non-emitters), see
+    :func:`aobake.kernels.hierarchy.leaf_representatives` (SHARE_COS)."""
+    rep_of = np.arange(elements.n_vertices, dtype=np.int64)
+    _h.leaf_representatives(
+        elements.positions, elements.normals, elements.areas, tree.order, tree.skip,
+        tree.start, tree.stop, SHARE_COS, rep_of,
+    )
+    return rep_of
+
+
+def receiver_buckets(elements: DiskElements, tree: ClusterTree) -> tuple[IndexArray, IndexArray]:
+    """Receivers grouped into small, compact buckets that walk the tree together.
+
+    The emitters' tree leaves are the first buckets (in tree order, so consecutive
+    buckets are neighbours); the other vertices (no area or no normal) get a tree of
+    their own, whose leaves are the remaining buckets.
+
+    Returns
+    -------
+    order : (n,) int64
+        Every vertex once, bucket by bucket.
+    bucket_start : (nb + 1,) int64
+    """
+    leaves = tree.leaves
+    starts = [tree.start[leaves]]
+    order = [tree.order]
+    rest = _non_emitters(elements.n_vertices, tree.order)
+    if rest.size:
+        perm, start, _, skip = _h.build_tree(tree_keys(elements.points[rest]), tree.leaf_size)
+        rest_leaves = np.flatnonzero(skip == np.arange(1, skip.shape[0] + 1))
+        starts.append(start[rest_leaves] + tree.order.shape[0])
+        order.append(rest[perm])
+    bucket_start = np.append(np.concatenate(starts), elements.n_vertices).astype(np.int64)
+    return np.ascontiguousarray(np.concatenate(order), dtype=np.int64), bucket_start
+
+
+def occlusion_passes(
+    elements: DiskElements,
+    tree: ClusterTree | None = None,
+    options: BunnellOptions | None = None,
+    scheme: Scheme | None = None,
+    *,
+    progress: Progress | None = None,
+) -> FloatArray:
+    """Saturated occlusion of every pass, ``A_k = clip(combine_sides(sums_k), 0, 1)``.
+
+    Parameters
+    ----------
+    elements : DiskElements
+    tree : ClusterTree or None
+        ``None`` sums every disk exactly (brute force, O(n k): the test reference).
+    options : BunnellOptions, optional
+        ``passes`` K: pass 1 has ``w_j = 1``; pass k weights disk j, at distance r from
+        the receiver, by ``w_j = 1 - damping A_{k-1}(j; pass_reach r)``: disks that are
+        themselves in shadow cast less (Bunnell's double-shadow removal), but only by the
+        geometry near them, which can stand between them and the receiver. The occlusion
+        of j by emitters closer than R is read off distance bins of the previous pass
+        (``PASS_RADII``: R is rounded down to a bin radius); near-field cells keep
+        weight 1. Gated (``gate > 0``): the occlusion only counts for a receiver that has
+        the centroid o_j of what occludes j in front of its tangent plane,
+        ``g = clamp(n.(o_j - p) / (gate r), 0, 1)``. With ``directional``, every pass's
+        disk and cluster terms are also spread over DIRECTION_SECTORS azimuth sectors x 2
+        elevation bands of the receiver's hemisphere, and the total loses what any bin
+        holds beyond its measure; with ``pass_fill`` a later pass removes from a bin only
+        in proportion to how empty pass 1 left it (``kernels.bunnell.refill``).
+    scheme : Scheme, optional
+    progress : Progress or None
+
+    Returns
+    -------
+    occlusion : (K, n) float64 in [0, 1]
+        Row k - 1 is pass k's occlusion A_k (not the accessibility).
+    """
+    options = BunnellOptions() if options is None else options
+    scheme = Scheme() if scheme is None else scheme
+    passes = options.passes
+    code = MEASURE_CODES[options.measure]
+    reach = (math.inf if options.max_distance is None else options.max_distance) / elements.scale
+    progress = NullProgress() if progress is None else progress
+    n = elements.n_vertices
+    occlusion = np.zeros((passes, n))
+    if elements.n_emitters == 0:  # nothing casts: every vertex is open
+        progress.start(passes * n, "bunnell")
+        progress.advance(passes * n)
+        progress.finish()
+        return occlusion
+    # the blends read the second-to-last pass at every vertex
+    share = scheme.share_passes and scheme.combine == "last" and tree is not None and passes > 1
+    if share:
+        rep_of = pass_representatives(elements, tree)
+        # representatives in tree order (neighbours), then the vertices that do not cast
+        evaluated = np.concatenate(
+            [tree.order[rep_of[tree.order] == tree.order], _non_emitters(n, tree.order)]
+        )
+    progress.start(passes * n, "bunnell")  # every pass walks every bucket
+    sides, damping = scheme.sides, scheme.damping
+    with numba_threads(options.threads), np.errstate(under="ignore"):
+        job = _Pass(elements, tree, options.theta, options.near, code, reach, None,
+                    scheme.pass_reach, scheme.gate, options.directional)
+        # later passes read pass 1's direction bins at the receivers they evaluate
+        keepers = evaluated if share else np.arange(n)
+        fill = scheme.pass_fill and options.directional and passes > 1
+        fills = _fills(n, keepers) if fill else (None, None)
+        if share:
+            _shared_passes(job, occlusion, rep_of, evaluated, passes, sides, damping, fills,
+                           progress)
+        else:
+            _all_passes(job, occlusion, passes, sides, damping, fills, progress)
+    progress.finish()
+    return occlusion
+
+
+def _weights_from(sums: FloatArray, sides: str, damping: float) -> FloatArray:
+    """(n, N_LEVELS) pass weights from binned sums: level 0 is 1, level b + 1 is
+    ``1 - damping A(j; R_b)`` (occlusion by emitters closer than bin b's outer radius)."""
+    weights = np.ones((sums.shape[0], _k.N_LEVELS))
+    for b in range(_k.N_BINS):
+        weights[:, b + 1] = 1.0 - damping * np.clip(combine_sides(sums[:, :, b], sides), 0.0, 1.0)
+    return weights
+
+
+def _all_passes(job, occlusion, passes, sides, damping, fills, progress) -> None:
+    """Every pass at every vertex (the exact sum's and the reference's way); ``fills``:
+    the kernels' ``fill`` for pass 1 and for the later passes (:func:`_fills`)."""
+    n = occlusion.shape[1]
+    weights = np.ones((n, _k.N_LEVELS))
+    cell_weights = np.ones(n)
+    occluders = None
+    for k in range(passes):
+        binned = k + 1 < passes  # the next pass needs occlusion by distance
+        # cells keep weight 1 in every pass: evaluate them once
+        cache_mode = 0 if passes == 1 else (1 if k == 0 else 2)
+        sums, first = job.sums(weights, progress, cell_weights, binned, cache_mode, occluders,
+                               fill=fills[min(k, 1)])
+        _check_sums(sums, "unsaturated occlusion sum", lower=0.0, upper=np.inf)
+        if binned and k == 0:
+            occluders = occluder_centroids(job.elements, first)
+        occlusion[k] = np.clip(combine_sides(sums[:, :, -1], sides), 0.0, 1.0)
+        if binned:
+            weights = _weights_from(sums, sides, damping)
+
+
+def _shared_passes(job, occlusion, rep_of, evaluated, passes, sides, damping, fills,
+                   progress) -> None:
+    """Pass 1 at every vertex (split by distance: every vertex's own weights); passes
+    2..K at the representatives only, walking the tree from the same buckets as pass 1
+    (so pass 1 and pass k share their tree approximations there), carried to the
+    vertices they stand for as what pass k removed, side by side:
+    ``S_k(i) = S_1(i) - (S_1(rep) - S_k(rep))``. What a later pass removes (occlusion
+    by emitters at least 2 PASS_RADII[0] away that are themselves in shadow) varies
+    smoothly over a leaf; each vertex keeps its own near field and contacts (a ratio
+    S_k(rep) / S_1(rep) would scale them: measured worse at contacts)."""
+    n = occlusion.shape[1]
+    ones = np.ones(n)
+    first_sums, first = job.sums(np.ones((n, _k.N_LEVELS)), progress, ones, True, 0, fill=fills[0])
+    _check_sums(first_sums, "unsaturated occlusion sum", lower=0.0, upper=np.inf)
+    base = first_sums[:, :, -1]
+    occlusion[0] = np.clip(combine_sides(base, sides), 0.0, 1.0)
+    # every vertex's own weights: occlusion within a few edge lengths (the first bins)
+    # changes too fast to share (a contact vertex's leaf-mates are open)
+    occluders = occluder_centroids(job.elements, first)
+    weights = _weights_from(first_sums, sides, damping)
+    base_rep = base[rep_of]
+    modes = np.zeros(n, dtype=np.uint8)  # later passes: the representatives only
+    modes[evaluated] = 2
+    for k in range(1, passes):
+        binned = k + 1 < passes
+        sums, _ = job.sums(weights, progress, ones, binned, 0, occluders, modes, fill=fills[1])
+        _check_sums(sums, "unsaturated occlusion sum", lower=0.0, upper=np.inf)
+        shared = sums[rep_of]
+        drop = np.maximum(base_rep - shared[:, :, -1], 0.0)  # never above pass 1
+        occlusion[k] = np.clip(combine_sides(np.maximum(base - drop, 0.0), sides), 0.0, 1.0)
+        if binned:  # passes >= 3: the representatives' weights
+            weights = _weights_from(shared, sides, damping)
+
+
+def combine_sides(sums: FloatArray, sides: str = "max") -> FloatArray:
+    """Occlusion from the (front, back) sums of one pass.
+
+    ``"front"``: the front sum (front faces cast, the published method). ``"max"``:
+    ``max(front, back)``. Outside every closed object each direction crosses as many back
+    faces as front faces, so back = front for exact sums and nothing changes; a receiver
+    inside a closed object (sunk into it, or on a face it rests on) gets back =
+    front + 1, i.e. fully occluded; behind an open sheet (a floor seen from below) the
+    back faces count as the ray-traced reference counts them.
+    """
+    if sides == "front":
+        return sums[:, 0].copy()
+    return np.maximum(sums[:, 0], sums[:, 1])
+
+
+def occluder_centroids(elements: DiskElements, first: FloatArray) -> FloatArray:
+    """(n, 3) centroid of what occludes each vertex, weighted by its terms in the sums:
+    ``p + first[:, :3] / first[:, 3]`` (the moment over the summed terms, no direction
+    excess removed; normalised coordinates; the vertex itself where nothing occludes it,
+    or where the sums are too small to locate anything)."""
+    total = first[:, 3]
+    located = total > 1e-9
+    out = elements.positions.copy()
+    out[located] = elements.points[located] + first[located, :3] / total[located, None]
+    bad = ~np.isfinite(out).all(axis=1)
+    out[bad] = elements.positions[bad]
+    return np.ascontiguousarray(out)
+
+
+def combine_passes(occlusion: FloatArray, combine: str = "last") -> AOArray:
+    """Accessibility ``ao = 1 - A`` from the passes' occlusion.
+
+    Parameters
+    ----------
+    occlusion : (K, n) float64 in [0, 1]
+        From :func:`occlusion_passes`.
+    combine : {"last", "bunnell", "hoberock"}
+        ``"last"``: A_K. ``"bunnell"``: 0.4 A_{K-1} + 0.6 A_K (Bunnell's blend of passes 1
+        and 2 when K = 2). ``"hoberock"``: on accessibilities a = 1 - A,
+        0.7 min(a_{K-1}, a_K) + 0.3 max(a_{K-1}, a_K), a weighted minimum that leans to the
+        darker pass because even passes are too light (Hoberock & Jia). Both blends need
+        K >= 2.
+
+    Returns
+    -------
+    ao : (n,) float64 in [0, 1]
+    """
+    occlusion = np.asarray(occlusion, dtype=np.float64)
+    if occlusion.ndim != 2 or occlusion.shape[0] < 1:
+        raise ValueError(f"occlusion must have shape (K, n) with K >= 1, got {occlusion.shape}")
+    if combine not in ("last", "bunnell", "hoberock"):
+        raise ValueError(f"combine must be one of last, bunnell, hoberock, got {combine!r}")
+    if combine != "last" and occlusion.shape[0] < 2:
+        raise ValueError(f"combine={combine!r} blends the last two passes and needs passes >= 2")
+    last = 1.0 - occlusion[-1]
+    if combine == "last":
+        return last
+    prev = 1.0 - occlusion[-2]
+    if combine == "bunnell":
+        return 1.0 - (0.4 * occlusion[-2] + 0.6 * occlusion[-1])
+    return 0.7 * np.minimum(prev, last) + 0.3 * np.maximum(prev, last)
+
+
+
+def _check_sums(values, what: str, *, lower: float, upper: float) -> None:
+    check_result(values, what, lower=lower, upper=upper, method="bunnell")
