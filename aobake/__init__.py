@@ -7,6 +7,8 @@ function that needs them is first used.
 
 from __future__ import annotations
 
+from .lazy import exports
+
 __version__ = "0.1.0"
 
 __all__ = [
@@ -33,12 +35,4 @@ _LAZY = {
 }
 
 
-def __getattr__(name: str):
-    module = _LAZY.get(name)
-    if module is None:
-        raise AttributeError(f"module 'aobake' has no attribute {name!r}")
-    import importlib
-
-    value = getattr(importlib.import_module(f"{__name__}.{module}"), name)
-    globals()[name] = value
-    return value
+__getattr__ = exports(__name__, _LAZY)

@@ -16,7 +16,7 @@ PACKAGE = Path(__file__).resolve().parents[1] / "aobake"
 # Layer of each module, by the longest matching dotted prefix (relative to aobake).
 # Lower layers never import higher ones.
 LAYERS = {
-    "constants": 0, "errors": 0, "_types": 0, "checks": 0, "options": 0,
+    "constants": 0, "errors": 0, "_types": 0, "checks": 0, "options": 0, "lazy": 0,
     "kernels": 1,
     "mesh": 2, "sampling": 2, "progress": 2,
     "tracing": 3, "contacts": 3,

@@ -7,8 +7,7 @@ options; numpy and the kernels load on first use.
 
 from __future__ import annotations
 
-import importlib
-
+from ...lazy import exports
 from .options import BunnellOptions
 
 __all__ = ["BunnellOptions", "bunnell_ao", "run"]
@@ -32,8 +31,4 @@ _LAZY = {
 }
 
 
-def __getattr__(name: str):
-    module = _LAZY.get(name)
-    if module is None:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    return getattr(importlib.import_module(f"{__name__}.{module}"), name)
+__getattr__ = exports(__name__, _LAZY)

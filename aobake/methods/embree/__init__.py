@@ -6,14 +6,9 @@ loads on first use.
 
 from __future__ import annotations
 
+from ...lazy import exports
 from .options import EmbreeOptions
 
 __all__ = ["EmbreeAO", "EmbreeOptions", "embree_ao", "run"]
 
-
-def __getattr__(name: str):
-    if name in ("EmbreeAO", "embree_ao", "run", "estimate"):
-        from . import estimator
-
-        return getattr(estimator, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+__getattr__ = exports(__name__, {name: "estimator" for name in ("EmbreeAO", "embree_ao", "run", "estimate")})
