@@ -237,9 +237,9 @@ def compare_files(
 
     Returns
     -------
-    aobake.compare.Report
+    aobake.tools.compare.Report
     """
-    from .compare import compare_ao, plot_compare
+    from .tools.compare import compare_ao, plot_compare
     from .formats import read_bake
     from .io_common import atomic_write
 
@@ -299,11 +299,11 @@ def sweep_file(
 
     Returns
     -------
-    rows : list of aobake.sweep.SweepRow
+    rows : list of aobake.tools.sweep.SweepRow
     """
     import hashlib
 
-    from . import sweep
+    from .tools import sweep
     from .io_common import atomic_write
 
     out_dir = Path(out_dir)
@@ -366,7 +366,7 @@ def preview_file(
 ) -> None:
     """Render a bake (a mesh file carrying ``ao``: PLY or USD) to a PNG, AO as grey."""
     from .formats import read_bake
-    from .preview import grey, render_values, write_png
+    from .tools.preview import grey, render_values, write_png
     from .readers import load_mesh
 
     if Path(output).suffix.lower() != ".png":
@@ -385,7 +385,7 @@ def render_comparison(reference, candidate, output, *, size: int = 480, up: str 
     """Side-by-side PNG of two bakes of one mesh and their difference (blue: candidate
     darker, red: lighter; full scale = the largest |difference|)."""
     from .formats import read_bake
-    from .preview import error_colours, grey, render_values, write_png
+    from .tools.preview import error_colours, grey, render_values, write_png
     from .readers import load_mesh
 
     mesh_path = next((p for p in (reference, candidate) if Path(p).suffix.lower() != ".npy"), None)
@@ -515,7 +515,7 @@ def _field_sweep(surface, out_dir, key, up_axis, reference_rays, seed, threads, 
     """Rows for AO fields: ``surface`` as a rigid occluder on a ground grid (3 bounding
     radii each way, at its lowest point along ``up_axis``), scored
     on the ground vertices against Embree AO of occluder + ground."""
-    from . import sweep
+    from .tools import sweep
     from .field import field_ao, fit_field
     from .io_common import atomic_write
     from .mesh import surface_from_arrays

@@ -10,7 +10,7 @@ import pytest
 from click.testing import CliRunner
 
 from aobake.cli import main
-from aobake.compare import compare_ao, plot_compare
+from aobake.tools.compare import compare_ao, plot_compare
 from aobake.errors import AobakeError, InputError
 
 

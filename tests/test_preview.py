@@ -10,7 +10,7 @@ import pytest
 from click.testing import CliRunner
 
 from aobake.cli import main
-from aobake.preview import png_bytes, render_values
+from aobake.tools.preview import png_bytes, render_values
 
 
 def _decode_png(data: bytes) -> np.ndarray:

@@ -10,7 +10,7 @@ import trimesh
 from click.testing import CliRunner
 
 from aobake.cli import main
-from aobake.sweep import SweepRow, mark_pareto, run_sweep
+from aobake.tools.sweep import SweepRow, mark_pareto, run_sweep
 
 import shapes
 
@@ -105,7 +105,7 @@ def test_cli_sweep_writes_table_csv_json_png_and_caches(tmp_path, monkeypatch):
 
 
 def test_sweep_field_rows_score_the_ground(tmp_path, monkeypatch):
-    import aobake.sweep as sweep_mod
+    import aobake.tools.sweep as sweep_mod
 
     monkeypatch.setattr(
         sweep_mod,

@@ -12,8 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import InputError
-from .io_common import atomic_write, pyplot
+from ..errors import InputError
+from ..io_common import atomic_write, pyplot
 
 
 @dataclass(frozen=True)
