@@ -20,20 +20,19 @@ from aobake.kernels import polygon as KP
 from aobake.kernels import treepass as KT
 from aobake.kernels import warps as KW
 from aobake.mesh import Surface, surface_from_arrays
-
-import shapes
-from naive_bunnell import (
-    combine_meshes,
+from aobake.testing.closed_forms import (
     disk_on_axis_cosine,
     disk_on_axis_solid_angle,
-    facing_plates,
-    grid,
-    icosphere,
-    naive_bunnell_ao,
-    naive_sums,
-    naive_vertex_areas,
     polygon_form_factor,
-    raycast_ao,
+)
+from aobake.testing.naive_bunnell import naive_bunnell_ao, naive_sums, naive_vertex_areas
+from aobake.testing.naive_rays import raycast_ao
+from aobake.testing.scenes import (
+    combine_meshes,
+    facing_plates,
+    ground_grid,
+    icosphere,
+    sphere_on_ground,
     sphere_on_plane,
     spheres_in_block,
     touching_spheres,
@@ -186,7 +185,7 @@ def test_solid_angle_of_a_rectangle():
 def test_cells_tile_the_surface():
     """The barycentric cells of all vertices are the triangles: their summed form factors
     equal the triangles' (either side, one plane through no receiver)."""
-    p, f = grid(6, 1.0, 0.8, up=False)
+    p, f = ground_grid(1.0, 6, 0.8, up=False)
     s = surface_from_arrays(p, f)
     e = B.build_elements(s)
     quad = np.empty((4, 3))
@@ -366,7 +365,7 @@ def _balls_over_floor():
     straight above their vertices as in the numpy reference)."""
     return combine_meshes(
         icosphere(1, center=(-1.1, 0.0, 0.2)), icosphere(1, center=(1.1, 0.0, 0.2)),
-        grid(6, 3.0, -1.0),
+        ground_grid(3.0, 6, -1.0),
     )
 
 
@@ -578,7 +577,7 @@ def test_receiver_on_a_floor_vertex_is_not_lifted_through_it():
     """A sphere whose lowest vertex coincides with a ground vertex (data/sphere_on_ground):
     lifting the receiver along the sphere's normal put it under the floor, which read
     ao = 1.0 where the reference says 0."""
-    s, low = shapes.sphere_on_ground(subdivisions=2)
+    s, low = sphere_on_ground(subdivisions=2)
     on_floor = np.flatnonzero(np.linalg.norm(s.positions - s.positions[low], axis=1) < 1e-12)
     assert on_floor.size == 2  # the pole and the ground vertex under it
     for kw in (dict(), dict(exact=True), dict(passes=2)):
@@ -588,7 +587,7 @@ def test_receiver_on_a_floor_vertex_is_not_lifted_through_it():
 def test_face_resting_on_a_face_is_covered():
     """A box resting on a plate: plate vertices under it are inside the box (fully
     occluded), the ones outside its footprint are not."""
-    plate = grid(8, 1.0, 0.0)
+    plate = ground_grid(1.0, 8, 0.0)
     box = trimesh.creation.box(extents=(0.8, 0.8, 0.5))
     bp = np.asarray(box.vertices) + [0.0, 0.0, 0.25]
     s = combine_meshes(plate, (bp, np.asarray(box.faces)))
@@ -756,7 +755,7 @@ def _isolated_vertices():
 
 
 def _two_sided_sheet():
-    p, f = grid(10, 1.0)
+    p, f = ground_grid(1.0, 10)
     return combine_meshes((p, f), (p.copy(), f[:, ::-1]))
 
 
@@ -1249,7 +1248,7 @@ def test_shared_passes_follow_the_full_ones(pass_fill):
     s = _balls_over_floor()
     dense = combine_meshes(
         icosphere(3, center=(-1.1, 0.0, 0.2)), icosphere(3, center=(1.1, 0.0, 0.2)),
-        grid(30, 3.0, -1.0),
+        ground_grid(3.0, 30, -1.0),
     )
     for scene in (s, dense, small_scene()):
         one = B.bunnell_ao(scene)

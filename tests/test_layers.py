@@ -32,7 +32,7 @@ ROOMS = ("methods.embree", "methods.bunnell", "methods.fields")
 # The only modules that may import these libraries (prefixes).
 OWNERS = {
     "embreex": ("tracing",),
-    "trimesh": ("readers",),
+    "trimesh": ("readers", "testing"),  # testing: procedural scenes (icospheres, boxes)
 }
 
 

@@ -81,9 +81,9 @@ def test_values_interpolate_between_vertices():
 def baked(tmp_path):
     import trimesh
 
-    import shapes
+    from aobake.testing import scenes
 
-    s, _ = shapes.sphere_on_ground(0.5, 2, cells=4)
+    s, _ = scenes.sphere_on_ground(0.5, 2, cells=4)
     src = tmp_path / "s.ply"
     trimesh.Trimesh(s.positions, s.faces, process=False).export(src)
     out = tmp_path / "s_ao.ply"
