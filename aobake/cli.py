@@ -374,7 +374,7 @@ def sweep(mesh, out_dir, reference_rays, repeats, no_plot, no_fields, up, seed, 
     """
     from .pipeline import sweep_file
     from .progress import make_progress
-    from .sweep import to_markdown
+    from .tools.sweep import to_markdown
 
     def on_row(row):
         if not quiet:

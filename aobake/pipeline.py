@@ -231,10 +231,10 @@ def compare_files(
 
     Returns
     -------
-    aobake.compare.Report
+    aobake.tools.compare.Report
     """
-    from .compare import compare_ao, plot_compare
     from .io import atomic_write, read_bake
+    from .tools.compare import compare_ao, plot_compare
 
     for out in (json_path, plot_path, render_path):
         if out is not None:
@@ -292,12 +292,12 @@ def sweep_file(
 
     Returns
     -------
-    rows : list of aobake.sweep.SweepRow
+    rows : list of aobake.tools.sweep.SweepRow
     """
     import hashlib
 
-    from . import sweep
     from .io import atomic_write
+    from .tools import sweep
 
     out_dir = Path(out_dir)
     # the directory may exist (the reference cache lives there); its parent must
@@ -359,7 +359,7 @@ def preview_file(
 ) -> None:
     """Render a bake (a mesh file carrying ``ao``: PLY or USD) to a PNG, AO as grey."""
     from .io import load_mesh, read_bake
-    from .preview import grey, render_values, write_png
+    from .tools.preview import grey, render_values, write_png
 
     if Path(output).suffix.lower() != ".png":
         raise FormatError(f"{Path(output).name}: previews are written as PNG; use a .png suffix")
@@ -377,7 +377,7 @@ def render_comparison(reference, candidate, output, *, size: int = 480, up: str 
     """Side-by-side PNG of two bakes of one mesh and their difference (blue: candidate
     darker, red: lighter; full scale = the largest |difference|)."""
     from .io import load_mesh, read_bake
-    from .preview import error_colours, grey, render_values, write_png
+    from .tools.preview import error_colours, grey, render_values, write_png
 
     mesh_path = next((p for p in (reference, candidate) if Path(p).suffix.lower() != ".npy"), None)
     if mesh_path is None:
@@ -506,11 +506,11 @@ def _field_sweep(surface, out_dir, key, up_axis, reference_rays, seed, threads, 
     """Rows for AO fields: ``surface`` as a rigid occluder on a ground grid (3 bounding
     radii each way, at its lowest point along ``up_axis``), scored
     on the ground vertices against Embree AO of occluder + ground."""
-    from . import sweep
     from .field import field_ao, fit_field
     from .io import atomic_write
     from .mesh import surface_from_arrays
     from .methods.embree import embree_ao
+    from .tools import sweep
 
     up = 1 if up_axis.upper() == "Y" else 2
     lo, hi = surface.positions.min(axis=0), surface.positions.max(axis=0)

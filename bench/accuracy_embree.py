@@ -9,16 +9,12 @@ Owen-scrambled Sobol directions is visible.
 from __future__ import annotations
 
 import math
-import sys
-from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-
-from aobake.raytrace import embree_ao  # noqa: E402
-
-import shapes  # noqa: E402
+from aobake.methods.embree import embree_ao
+from aobake.testing import scenes
+from aobake.testing.closed_forms import polygon_form_factor
 
 SEEDS = 64
 
@@ -37,25 +33,25 @@ def main() -> None:
     print("| case | rays | exact A | mean abs err | max abs err | binomial sigma | sigma / RMS |")
     print("|---|---|---|---|---|---|---|")
     for n in (16, 64, 256, 1024):
-        s = shapes.receiver_under_disk(1.0, 0.7, sides=512)
-        exact = shapes.polygon_form_factor([0, 0, 0], [0, 0, 1], s.positions[1:513])
+        s = scenes.receiver_under_disk(1.0, 0.7, sides=512)
+        exact = polygon_form_factor(s.positions[1:513], [0, 0, 0], [0, 0, 1])
         est = [1 - embree_ao(s, n_rays=n, seed=k).ao[-3] for k in range(SEEDS)]
         _row("point under disk R=1, h=0.7 (cosine)", exact, est, n)
     for n in (64, 1024):
-        s = shapes.receiver_under_disk(1.0, 0.7, sides=512)
+        s = scenes.receiver_under_disk(1.0, 0.7, sides=512)
         exact = 1 - 0.7 / math.hypot(0.7, 1.0)
         est = [1 - embree_ao(s, n_rays=n, seed=k, measure="uniform").ao[-3] for k in range(SEEDS)]
         _row("point under disk (uniform)", exact, est, n)
     for n in (64, 1024):
-        s = shapes.parallel_plates(0.25, 4.0, cells=8)
+        s = scenes.parallel_plates(0.25, 4.0, cells=8)
         c = int(np.argmin(np.linalg.norm(s.positions, axis=1)))
         exact = 1 - (0.25 / 1.0) ** 2
         est = [1 - embree_ao(s, n_rays=n, seed=k, max_distance=1.0).ao[c] for k in range(SEEDS)]
         _row("plates gap 0.25, max distance 1", exact, est, n)
-    s = shapes.sphere(1.0, 3, inward=True)
+    s = scenes.sphere(1.0, 3, inward=True)
     _row("inside a closed sphere (all vertices)", 1.0, [1 - embree_ao(s, n_rays=64).ao.min()], 64)
     for scale in (1e-5, 1.0, 1e5):
-        s = shapes.random_convex(3, 2, scale)
+        s = scenes.random_convex(3, 2, scale)
         _row(
             f"convex body at scale {scale:g} (all vertices)",
             0.0,

@@ -6,18 +6,15 @@ Run: ``python bench/adaptive_embree.py`` (about a minute on 2 cores).
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import numpy as np
 
+from aobake.io import load_mesh
+from aobake.methods.embree import embree_ao
+from aobake.testing import scenes
+
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "tests"))
-
-from aobake.io import load_mesh  # noqa: E402
-from aobake.raytrace import embree_ao  # noqa: E402
-
-import shapes  # noqa: E402
 
 SETTINGS = [
     {"n_rays": 64},
@@ -30,14 +27,14 @@ SETTINGS = [
 
 
 def main() -> None:
-    scenes = [
-        ("sphere_on_ground (4k)", shapes.sphere_on_ground(0.5, 4, cells=40)[0]),
+    meshes = [
+        ("sphere_on_ground (4k)", scenes.sphere_on_ground(0.5, 4, cells=40)[0]),
         ("bunny", load_mesh(ROOT / "data" / "bunny.ply")),
         ("box_stack", load_mesh(ROOT / "data" / "box_stack.ply")),
     ]
     print("| scene | setting | rays/vertex | RMSE | p99 | early stops within tol |")
     print("|---|---|---:|---:|---:|---:|")
-    for name, s in scenes:
+    for name, s in meshes:
         ref = embree_ao(s, n_rays=8192, seed=99).ao
         for kw in SETTINGS:
             r = embree_ao(s, seed=1, **kw)

@@ -31,24 +31,20 @@ from __future__ import annotations
 import argparse
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
-HERE = Path(__file__).resolve().parent
-sys.path.insert(0, str(HERE))
-sys.path.insert(0, str(HERE.parent / "tests"))
+from aobake.constants import MEASURE_CODES
+from aobake.kernels import bunnell as K
+from aobake.methods import bunnell as B
+from aobake.methods.bunnell import BunnellOptions
+from aobake.methods.bunnell import passes as P
+from aobake.methods.bunnell import tree as H
+from aobake.methods.embree import embree_ao
+from aobake.progress import NullProgress
+from aobake.testing import scenes as S
 
-from aobake.constants import MEASURE_CODES  # noqa: E402
-from aobake.methods import bunnell as B  # noqa: E402
-from aobake.methods.bunnell import BunnellOptions  # noqa: E402
-from aobake.methods.bunnell import passes as P  # noqa: E402
-from aobake.methods.bunnell import tree as H  # noqa: E402
-from aobake.kernels import bunnell as K  # noqa: E402
-from aobake.methods.embree import embree_ao  # noqa: E402
-from aobake.progress import NullProgress  # noqa: E402
-
-import common  # noqa: E402
+import common
 
 REF_RAYS = 1024
 # The opening parameter of the plain-sum rows (no per-direction saturation).
@@ -68,13 +64,11 @@ def reference(name: str, surface) -> np.ndarray:
 
 
 def scenes(quick: bool):
-    import naive_bunnell as nb
-
     out = {
-        "sphere on plane": nb.sphere_on_plane(subdivisions=3, cells=40),
-        "touching spheres": nb.touching_spheres(subdivisions=3),
-        "facing plates": nb.facing_plates(cells=24, gap=0.5),
-        "voxel sponge": nb.voxel_sponge(cells=4),
+        "sphere on plane": S.sphere_on_plane(subdivisions=3, cells=40),
+        "touching spheres": S.touching_spheres(subdivisions=3),
+        "facing plates": S.facing_plates(cells=24, gap=0.5),
+        "voxel sponge": S.voxel_sponge(cells=4),
     }
     for s in common.data_scenes():
         out[s.name + ".ply"] = s.surface

@@ -1,4 +1,4 @@
-"""Benchmark of ``aobake.raytrace.embree_ao``: overhead over bare Embree, and libigl.
+"""Benchmark of ``aobake.methods.embree.embree_ao``: overhead over bare Embree, and libigl.
 
 Run from the repository root::
 
@@ -30,24 +30,17 @@ import sys
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from aobake.constants import CHUNK_RAYS, INFINITE_DISTANCE  # noqa: E402
-from aobake.kernels import rays as _k  # noqa: E402
-from aobake.raytrace import (  # noqa: E402
-    MEASURES,
-    Scene,
-    contact_origins,
-    embree_ao,
-    ray_offsets,
-    shell_labels,
-)
-from aobake.sampling import sample_directions  # noqa: E402
+from aobake.constants import CHUNK_RAYS, INFINITE_DISTANCE, MEASURE_CODES
+from aobake.contacts import contact_origins, ray_offsets, shell_labels
+from aobake.kernels import rays as _k
+from aobake.methods.embree import embree_ao
+from aobake.sampling import sample_directions
+from aobake.tracing import Tracer
 
-import common as C  # noqa: E402
+import common as C
 
 RUN_SEED = 0
 #: The reference uses another scrambling key: with the same key, the N-ray estimates
@@ -81,14 +74,14 @@ def try_igl():
 class Prepared:
     """What every method gets alike: the scene, offset origins (float32, local frame)."""
 
-    scene: Scene
+    scene: Tracer
     origins: np.ndarray
     contacts: int
 
     @classmethod
     def of(cls, surface) -> Prepared:
-        scene = Scene(surface.positions, surface.faces)
-        origins, contacts = contact_origins(surface, scene, ray_offsets(surface, scene))
+        scene = Tracer(surface.positions, surface.faces)
+        origins, contacts = contact_origins(surface, scene, ray_offsets(surface, scene.magnitude))
         return cls(scene, origins, contacts)
 
 
@@ -122,7 +115,7 @@ def trace_only_chunks(surface, prep: Prepared, n_rays: int, measure: str, chunk_
     ]
 
 
-def trace_runner(scene: Scene, chunks, threads: int):
+def trace_runner(scene: Tracer, chunks, threads: int):
     def run():
         with ThreadPoolExecutor(max_workers=threads) as pool:
             return list(pool.map(lambda c: scene.occluded(c[0], c[1], INFINITE_DISTANCE), chunks))
@@ -167,8 +160,8 @@ def profile_stages(surface, n_rays: int, chunk_rays: int) -> dict[str, float]:
         return r
 
     n = surface.n_vertices
-    scene = clock("BVH build", lambda: Scene(surface.positions, surface.faces))
-    offsets = clock("offsets", lambda: ray_offsets(surface, scene))
+    scene = clock("BVH build", lambda: Tracer(surface.positions, surface.faces))
+    offsets = clock("offsets", lambda: ray_offsets(surface, scene.magnitude))
     clock("shell labels", lambda: shell_labels(surface))
     origins, _ = clock("contact fix", lambda: contact_origins(surface, scene, offsets))
     # contact_origins computes the shell labels itself: they have their own column
@@ -184,7 +177,7 @@ def profile_stages(surface, n_rays: int, chunk_rays: int) -> dict[str, float]:
         org = np.zeros((k, 3), dtype=np.float32)
         dirs = np.zeros((k, 3), dtype=np.float32)
         clock("ray generation", lambda: _k.generate_rays(
-            origins, normals, keys, vi, 0, n_rays, MEASURES["cosine"], org, dirs))  # noqa: B023
+            origins, normals, keys, vi, 0, n_rays, MEASURE_CODES["cosine"], org, dirs))  # noqa: B023
         ids = clock("occluded", lambda: scene.occluded(org, dirs, INFINITE_DISTANCE))  # noqa: B023
         clock("keys + count", lambda: _k.count_hits(ids, n_rays, vi, hits))  # noqa: B023
     return out
@@ -303,7 +296,7 @@ P = V + 1e-5 * (abs(V).max() + 1.0) * N
 """
 _PROBE_RUN = {
     "ours": """
-from aobake.raytrace import embree_ao
+from aobake.methods.embree import embree_ao
 embree_ao(s, n_rays=4, threads={threads})
 print("GO", flush=True)
 t = time.perf_counter()
@@ -373,7 +366,7 @@ def report(facts, e2e: list[E2E], stages, sweeps: list[Sweep], args, igl, small_
          "trace Mrays/s", "ratio (goal ≥ 0.9)", "ours w/o contact fix s", "ratio w/o fix",
          "cores ours / trace", "same AO", "reps"],
         rows,
-        "ratio = trace-only time / end-to-end time. Trace-only times only `Scene.occluded` on "
+        "ratio = trace-only time / end-to-end time. Trace-only times only `Tracer.occluded` on "
         "the same rays prepared in advance (no BVH build, no contact probes, no ray "
         "generation); `same AO` checks bit-identical hit counts. `w/o contact fix`: "
         "`embree_ao(contact_fix=False)` (plain offset origins, as peers do), timed in the same "

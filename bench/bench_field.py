@@ -31,15 +31,13 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
+from aobake.field import cap_integral, fields_ao, fit_field, hull_distance, save_field
+from aobake.io import load_mesh
+from aobake.mesh import surface_from_arrays
+from aobake.methods.embree import embree_ao
+from aobake.raster import raster_occlusion
 
-from aobake.field import cap_integral, fields_ao, fit_field, hull_distance, save_field  # noqa: E402
-from aobake.io import load_mesh  # noqa: E402
-from aobake.mesh import surface_from_arrays  # noqa: E402
-from aobake.raster import raster_occlusion  # noqa: E402
-from aobake.raytrace import embree_ao  # noqa: E402
-
-from common import DATA_DIR, RESULTS_DIR, machine_facts, markdown_table, rmse  # noqa: E402
+from common import DATA_DIR, RESULTS_DIR, machine_facts, markdown_table, rmse
 
 REFERENCE_RAYS = 4096
 CELLS = 100

@@ -1,4 +1,4 @@
-"""Shared helpers for the benchmarks: scenes, timers, error metrics and Markdown tables.
+"""Shared helpers for the benchmarks: cached scenes, timers, error metrics and Markdown tables.
 
 Every number a benchmark reports should be a ratio of timings taken in the same run
 (the bench machine is shared and noisy); :func:`interleaved` runs the contenders in
@@ -19,11 +19,13 @@ from typing import Any, Callable
 
 import numpy as np
 
+from aobake.testing import scenes
+
 ROOT = Path(__file__).resolve().parent.parent
 DATA_DIR = ROOT / "data"
 RESULTS_DIR = Path(__file__).resolve().parent / "results"  # gitignored
 
-#: Bump when the procedural scene changes, so stale caches are not reused.
+#: Bump when a large scene of aobake.testing.scenes changes, so stale caches are not reused.
 SCENE_VERSION = 1
 
 
@@ -75,87 +77,21 @@ def data_scenes(data_dir: Path = DATA_DIR) -> list[BenchScene]:
     return out
 
 
-def spheres_on_ground_arrays(n_vertices: int) -> tuple[np.ndarray, np.ndarray, str]:
-    """Positions, faces and a description of the procedural occlusion scene.
-
-    Four unit icospheres in a 2 x 2 block, 0.1 apart, resting on a square ground grid
-    (one sunk 0.02 into it, as objects placed by hand often are). Crevices between the
-    spheres and the contact rings on the ground give real occlusion, from none (tops)
-    to nearly full (contacts). The sphere subdivision level is the largest for which
-    the spheres take at most 95% of ``n_vertices``; the grid gets the rest.
-    Deterministic (no random numbers).
-    """
-    import trimesh
-
-    level = 1
-    while 4 * (10 * 4 ** (level + 1) + 2) <= 0.95 * n_vertices and level < 9:
-        level += 1
-    ball = trimesh.creation.icosphere(subdivisions=level, radius=1.0)
-    bv, bf = np.asarray(ball.vertices, dtype=np.float64), np.asarray(ball.faces, dtype=np.int64)
-    rest = max(81, n_vertices - 4 * len(bv))
-    cells = max(8, int(round(math.sqrt(rest))) - 1)
-    half = 3.2
-    t = np.linspace(-half, half, cells + 1)
-    x, y = np.meshgrid(t, t, indexing="ij")
-    grid_v = np.c_[x.ravel(), y.ravel(), np.zeros(x.size)]
-    i, j = np.meshgrid(np.arange(cells), np.arange(cells), indexing="ij")
-    a = (i * (cells + 1) + j).ravel()
-    b, c, d = a + cells + 1, a + 1, a + cells + 2
-    grid_f = np.vstack([np.c_[a, b, d], np.c_[a, d, c]])  # faces +z
-
-    positions, faces = [grid_v], [grid_f]
-    base = len(grid_v)
-    for k, (cx, cy) in enumerate([(-1.05, -1.05), (1.05, -1.05), (-1.05, 1.05), (1.05, 1.05)]):
-        cz = 1.0 - (0.02 if k == 3 else 0.0)
-        positions.append(bv + [cx, cy, cz])
-        faces.append(bf + base)
-        base += len(bv)
-    positions = np.concatenate(positions)
-    faces = np.concatenate(faces)
-    desc = f"4 icospheres (subdivisions={level}) on a {cells}x{cells} ground grid"
-    return positions, faces, desc
-
-
-def bunny_on_ground_arrays(n_vertices: int) -> tuple[np.ndarray, np.ndarray, str]:
-    """Positions, faces and a description of the second big scene: data/bunny.ply, loop
-    subdivided (trimesh) to about 70% of ``n_vertices``, one unit tall, standing on a
-    square ground grid (y up, 4 units wide) that gets the rest. A smooth scanned object on
-    a floor: the everyday bake, unlike the crevices of :func:`spheres_on_ground_arrays`.
-    """
-    import trimesh
-
-    bunny = load_surface(DATA_DIR / "bunny.ply")
-    v, f = np.asarray(bunny.positions, dtype=np.float64), np.asarray(bunny.faces, dtype=np.int64)
-    level = 0
-    while len(v) * 4 ** (level + 1) <= 0.7 * n_vertices:
-        level += 1
-    if level:
-        v, f = trimesh.remesh.subdivide_loop(v, f, iterations=level)
-    lo, hi = v.min(axis=0), v.max(axis=0)
-    v = (v - [0.5 * (lo[0] + hi[0]), lo[1], 0.5 * (lo[2] + hi[2])]) / (hi[1] - lo[1])
-    rest = max(81, n_vertices - len(v))
-    cells = max(8, int(round(math.sqrt(rest))) - 1)
-    t = np.linspace(-2.0, 2.0, cells + 1)
-    x, z = np.meshgrid(t, t, indexing="ij")
-    grid_v = np.c_[x.ravel(), np.zeros(x.size), z.ravel()]
-    i, j = np.meshgrid(np.arange(cells), np.arange(cells), indexing="ij")
-    a = (i * (cells + 1) + j).ravel()
-    b, c, d = a + cells + 1, a + 1, a + cells + 2
-    grid_f = np.vstack([np.c_[a, d, b], np.c_[a, c, d]])  # faces +y
-    positions = np.concatenate([v, grid_v])
-    faces = np.concatenate([f, grid_f + len(v)])
-    desc = f"bunny.ply loop-subdivided {level}x ({len(v)} vertices) on a {cells}x{cells} ground grid"
-    return positions, faces, desc
-
-
 def bunny_on_ground(n_vertices: int = 700_000, *, cache: bool = True) -> tuple[Any, str]:
-    """The bunny scene as a Surface (cached as .npz under bench/results/)."""
-    return _cached_scene("bunny_on_ground", "bunny", n_vertices, bunny_on_ground_arrays, cache)
+    """data/bunny.ply on a floor (aobake.testing.scenes.bunny_on_ground_arrays) as a
+    Surface, cached as .npz under bench/results/."""
+
+    def arrays(n):
+        bunny = load_surface(DATA_DIR / "bunny.ply")
+        return scenes.bunny_on_ground_arrays(bunny.positions, bunny.faces, n)
+
+    return _cached_scene("bunny_on_ground", "bunny", n_vertices, arrays, cache)
 
 
 def spheres_on_ground(n_vertices: int = 700_000, *, cache: bool = True) -> tuple[Any, str]:
-    """The procedural scene as a Surface (cached as .npz under bench/results/)."""
-    return _cached_scene("spheres_on_ground", "spheres", n_vertices, spheres_on_ground_arrays, cache)
+    """Four balls in a block on a floor (aobake.testing.scenes.spheres_in_block_arrays) as
+    a Surface, cached as .npz under bench/results/."""
+    return _cached_scene("spheres_on_ground", "spheres", n_vertices, scenes.spheres_in_block_arrays, cache)
 
 
 def _cached_scene(key, name, n_vertices, arrays, cache):

@@ -16,8 +16,7 @@ import trimesh
 from click.testing import CliRunner
 
 from aobake.cli import main
-
-import shapes
+from aobake.testing import scenes
 
 ASCII_HEADER = (
     "ply\nformat ascii 1.0\nelement vertex {n}\nproperty float x\nproperty float y\n"
@@ -51,7 +50,7 @@ def _write(path: Path, data) -> Path:
 
 
 def _good_mesh(d: Path) -> Path:
-    s, _ = shapes.sphere_on_ground(0.5, 1, cells=2)
+    s, _ = scenes.sphere_on_ground(0.5, 1, cells=2)
     path = d / "good.ply"
     trimesh.Trimesh(s.positions, s.faces, process=False).export(path)
     return path
@@ -120,7 +119,7 @@ def test_bad_field_file_for_bake(tmp_path):
     ids=["bake", "field", "sweep"],
 )
 def test_interrupt_leaves_no_output(tmp_path, command):
-    s, _ = shapes.sphere_on_ground(0.5, 4, gap=0.0, cells=32)
+    s, _ = scenes.sphere_on_ground(0.5, 4, gap=0.0, cells=32)
     src = tmp_path / "big.ply"
     trimesh.Trimesh(s.positions, s.faces, process=False).export(src)
     out = tmp_path / "result"

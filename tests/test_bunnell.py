@@ -10,10 +10,6 @@ import trimesh
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from aobake.methods import bunnell as B
-from aobake.methods.bunnell import BunnellOptions
-from aobake.methods.bunnell import passes as P
-from aobake.methods.bunnell import tree as H
 from aobake.constants import DIRECTION_SECTORS, MEASURE_CODES, PASS_RADII
 from aobake.errors import NumericalError
 from aobake.kernels import bunnell as K
@@ -22,21 +18,24 @@ from aobake.kernels import polygon as KP
 from aobake.kernels import treepass as KT
 from aobake.kernels import warps as KW
 from aobake.mesh import Surface, surface_from_arrays
+from aobake.methods import bunnell as B
+from aobake.methods.bunnell import BunnellOptions
+from aobake.methods.bunnell import passes as P
+from aobake.methods.bunnell import tree as H
 from aobake.progress import NullProgress
-
-import shapes
-from naive_bunnell import (
-    combine_meshes,
+from aobake.testing.closed_forms import (
     disk_on_axis_cosine,
     disk_on_axis_solid_angle,
-    facing_plates,
-    grid,
-    icosphere,
-    naive_bunnell_ao,
-    naive_sums,
-    naive_vertex_areas,
     polygon_form_factor,
-    raycast_ao,
+)
+from aobake.testing.naive_bunnell import naive_bunnell_ao, naive_sums, naive_vertex_areas
+from aobake.testing.naive_rays import raycast_ao
+from aobake.testing.scenes import (
+    combine_meshes,
+    facing_plates,
+    ground_grid,
+    icosphere,
+    sphere_on_ground,
     sphere_on_plane,
     spheres_in_block,
     touching_spheres,
@@ -95,8 +94,11 @@ def small_scene():
     return surface_from_arrays(np.vstack([p, extra_p]), faces, np.vstack([n, extra_n]))
 
 
-def _sums(elements, tree, weights, *, measure="cosine", max_distance=None, near=BunnellOptions().near,
-          theta=BunnellOptions().theta, cell_weights=None, directional=True):
+DEFAULTS = BunnellOptions()
+
+
+def _sums(elements, tree, weights, *, measure="cosine", max_distance=None, near=DEFAULTS.near,
+          theta=DEFAULTS.theta, cell_weights=None, directional=True):
     """Raw (front, back) kernel sums with given weights (brute force when tree is None)."""
     reach = np.inf if max_distance is None else max_distance / elements.scale
     job = P._Pass(elements, tree, theta, near, MEASURE_CODES[measure], reach, directional=directional)
@@ -194,7 +196,7 @@ def test_solid_angle_of_a_rectangle():
 def test_cells_tile_the_surface():
     """The barycentric cells of all vertices are the triangles: their summed form factors
     equal the triangles' (either side, one plane through no receiver)."""
-    p, f = grid(6, 1.0, 0.8, up=False)
+    p, f = ground_grid(1.0, 6, 0.8, up=False)
     s = surface_from_arrays(p, f)
     e = B.build_elements(s)
     quad = np.empty((4, 3))
@@ -213,7 +215,7 @@ def test_cells_tile_the_surface():
 @pytest.mark.parametrize(
     ("measure", "oracle"), [("cosine", disk_on_axis_cosine), ("uniform", disk_on_axis_solid_angle)]
 )
-@pytest.mark.parametrize("near", [0.0, BunnellOptions().near])
+@pytest.mark.parametrize("near", [0.0, DEFAULTS.near])
 def test_point_under_disk_mesh(exact, measure, oracle, near):
     """DESIGN 6: a point facing a coaxial disk; many small disks sum to the closed form."""
     ao = B.variant_ao(receiver_under_disk(), measure=measure, exact=exact, near=near)
@@ -374,7 +376,7 @@ def _balls_over_floor():
     straight above their vertices as in the numpy reference)."""
     return combine_meshes(
         icosphere(1, center=(-1.1, 0.0, 0.2)), icosphere(1, center=(1.1, 0.0, 0.2)),
-        grid(6, 3.0, -1.0),
+        ground_grid(3.0, 6, -1.0),
     )
 
 
@@ -529,7 +531,7 @@ def test_cumulative_bins_match_max_distance():
 
 
 @pytest.mark.parametrize("theta", [0.5, 8.0, 1e12])
-@pytest.mark.parametrize("near", [0.0, BunnellOptions().near, 1e6])
+@pytest.mark.parametrize("near", [0.0, DEFAULTS.near, 1e6])
 def test_convex_body_is_fully_open(theta, near):
     """Every chord of a convex body leaves through the receiver's back: A = 0 exactly."""
     s = surface_from_arrays(*icosphere(3))
@@ -586,7 +588,7 @@ def test_receiver_on_a_floor_vertex_is_not_lifted_through_it():
     """A sphere whose lowest vertex coincides with a ground vertex (data/sphere_on_ground):
     lifting the receiver along the sphere's normal put it under the floor, which read
     ao = 1.0 where the reference says 0."""
-    s, low = shapes.sphere_on_ground(subdivisions=2)
+    s, low = sphere_on_ground(subdivisions=2)
     on_floor = np.flatnonzero(np.linalg.norm(s.positions - s.positions[low], axis=1) < 1e-12)
     assert on_floor.size == 2  # the pole and the ground vertex under it
     for kw in (dict(), dict(exact=True), dict(passes=2)):
@@ -596,7 +598,7 @@ def test_receiver_on_a_floor_vertex_is_not_lifted_through_it():
 def test_face_resting_on_a_face_is_covered():
     """A box resting on a plate: plate vertices under it are inside the box (fully
     occluded), the ones outside its footprint are not."""
-    plate = grid(8, 1.0, 0.0)
+    plate = ground_grid(1.0, 8, 0.0)
     box = trimesh.creation.box(extents=(0.8, 0.8, 0.5))
     bp = np.asarray(box.vertices) + [0.0, 0.0, 0.25]
     s = combine_meshes(plate, (bp, np.asarray(box.faces)))
@@ -764,7 +766,7 @@ def _isolated_vertices():
 
 
 def _two_sided_sheet():
-    p, f = grid(10, 1.0)
+    p, f = ground_grid(1.0, 10)
     return combine_meshes((p, f), (p.copy(), f[:, ::-1]))
 
 
@@ -1256,7 +1258,7 @@ def test_shared_passes_follow_the_full_ones(pass_fill):
     s = _balls_over_floor()
     dense = combine_meshes(
         icosphere(3, center=(-1.1, 0.0, 0.2)), icosphere(3, center=(1.1, 0.0, 0.2)),
-        grid(30, 3.0, -1.0),
+        ground_grid(3.0, 30, -1.0),
     )
     for scene in (s, dense, small_scene()):
         one = B.variant_ao(scene)

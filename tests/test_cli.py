@@ -16,8 +16,7 @@ from click.testing import CliRunner
 
 from aobake.cli import main
 from aobake.io import read_bake
-
-import shapes
+from aobake.testing import scenes
 
 
 @pytest.fixture
@@ -27,7 +26,7 @@ def runner():
 
 @pytest.fixture
 def scene_ply(tmp_path) -> Path:
-    s, _ = shapes.sphere_on_ground(0.5, 2, gap=0.0, cells=6)
+    s, _ = scenes.sphere_on_ground(0.5, 2, gap=0.0, cells=6)
     path = tmp_path / "scene.ply"
     trimesh.Trimesh(s.positions, s.faces, process=False).export(path)
     return path
@@ -179,7 +178,7 @@ def test_usage_errors_exit_2(runner, scene_ply, tmp_path):
 
 def test_interrupt_leaves_no_output(tmp_path):
     # A bake big enough to be interrupted mid-trace; SIGINT -> exit != 0, no file, no traceback.
-    s, _ = shapes.sphere_on_ground(0.5, 5, gap=0.0, cells=64)
+    s, _ = scenes.sphere_on_ground(0.5, 5, gap=0.0, cells=64)
     src = tmp_path / "big.ply"
     trimesh.Trimesh(s.positions, s.faces, process=False).export(src)
     out = tmp_path / "big_out.usdc"

@@ -10,8 +10,8 @@ import pytest
 from click.testing import CliRunner
 
 from aobake.cli import main
-from aobake.compare import compare_ao, plot_compare
 from aobake.errors import AobakeError, InputError
+from aobake.tools.compare import compare_ao, plot_compare
 
 
 def test_statistics_by_hand():
@@ -79,9 +79,9 @@ def test_cli_compare_mismatch_is_one_line(tmp_path):
 def test_cli_compare_mesh_bakes_report_positions(tmp_path):
     import trimesh
 
-    import shapes
+    from aobake.testing import scenes
 
-    s, _ = shapes.sphere_on_ground(0.5, 2, cells=4)
+    s, _ = scenes.sphere_on_ground(0.5, 2, cells=4)
     src = tmp_path / "s.ply"
     trimesh.Trimesh(s.positions, s.faces, process=False).export(src)
     r = CliRunner()

@@ -7,13 +7,12 @@ import pytest
 
 from aobake.methods.embree import EmbreeOptions, embree_ao
 from aobake.methods.embree.estimator import estimate
-
-import shapes
+from aobake.testing import scenes
 
 
 @pytest.fixture(scope="module")
 def scene():
-    s, _ = shapes.sphere_on_ground(0.5, 3, gap=0.0, cells=10)
+    s, _ = scenes.sphere_on_ground(0.5, 3, gap=0.0, cells=10)
     return s
 
 

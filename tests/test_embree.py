@@ -17,10 +17,10 @@ from aobake.mesh import surface_from_arrays
 from aobake.methods.embree import EmbreeOptions, embree_ao
 from aobake.methods.embree.estimator import estimate, half_width, stratified_half_width
 from aobake.sampling import sample_directions
+from aobake.testing import scenes
+from aobake.testing.closed_forms import polygon_form_factor
+from aobake.testing.naive_rays import reference_ao
 from aobake.tracing import Tracer
-
-import shapes
-from reference import reference_ao
 
 
 def mc_bound(a: float, n: int) -> float:
@@ -31,9 +31,9 @@ def mc_bound(a: float, n: int) -> float:
 @pytest.mark.parametrize("radius,height", [(1.0, 0.7), (0.5, 2.0), (3.0, 0.3)])
 @pytest.mark.parametrize("n_rays", [64, 1024])
 def test_point_under_disk_cosine(radius, height, n_rays):
-    s = shapes.receiver_under_disk(radius, height, sides=512)
+    s = scenes.receiver_under_disk(radius, height, sides=512)
     receiver = s.n_vertices - 3
-    exact_polygon = shapes.polygon_form_factor([0, 0, 0], [0, 0, 1], s.positions[1:513])
+    exact_polygon = polygon_form_factor(s.positions[1:513], [0, 0, 0], [0, 0, 1])
     exact_disk = radius**2 / (radius**2 + height**2)
     assert exact_polygon == pytest.approx(exact_disk, rel=1e-4)  # the polygon is a disk
     a = 1.0 - embree_ao(s, n_rays=n_rays, seed=1).ao[receiver]
@@ -43,7 +43,7 @@ def test_point_under_disk_cosine(radius, height, n_rays):
 @pytest.mark.parametrize("radius,height", [(1.0, 0.7), (0.5, 2.0)])
 def test_point_under_disk_uniform(radius, height):
     # uniform measure: the solid-angle fraction of the hemisphere, 1 - h / sqrt(h^2 + R^2)
-    s = shapes.receiver_under_disk(radius, height, sides=512)
+    s = scenes.receiver_under_disk(radius, height, sides=512)
     exact = 1.0 - height / math.hypot(height, radius)
     n = 1024
     a = 1.0 - embree_ao(s, n_rays=n, measure="uniform", seed=3).ao[s.n_vertices - 3]
@@ -53,8 +53,8 @@ def test_point_under_disk_uniform(radius, height):
 def test_stratified_error_far_below_binomial_bound():
     # 200 seeds of one receiver: the RMS error of the scrambled Sobol estimate sits well
     # under the binomial standard deviation sqrt(A(1 - A) / N) of plain Monte Carlo.
-    s = shapes.receiver_under_disk(1.0, 0.7, sides=512)
-    exact = shapes.polygon_form_factor([0, 0, 0], [0, 0, 1], s.positions[1:513])
+    s = scenes.receiver_under_disk(1.0, 0.7, sides=512)
+    exact = polygon_form_factor(s.positions[1:513], [0, 0, 0], [0, 0, 1])
     n = 64
     est = np.array([1.0 - embree_ao(s, n_rays=n, seed=k).ao[-3] for k in range(200)])
     rms = np.sqrt(np.mean((est - exact) ** 2))
@@ -63,13 +63,13 @@ def test_stratified_error_far_below_binomial_bound():
 
 
 def test_inside_closed_sphere_is_fully_occluded():
-    s = shapes.sphere(2.0, 3, inward=True)
+    s = scenes.sphere(2.0, 3, inward=True)
     np.testing.assert_array_equal(embree_ao(s, n_rays=64).ao, 0.0)
 
 
 @pytest.mark.parametrize(
     "surface",
-    [shapes.sphere(1.0, 3), shapes.box(), shapes.random_convex(0)],
+    [scenes.sphere(1.0, 3), scenes.box(), scenes.random_convex(0)],
     ids=["sphere", "box", "hull"],
 )
 @pytest.mark.parametrize("measure", ["cosine", "uniform"])
@@ -81,7 +81,7 @@ def test_convex_body_does_not_occlude_itself(surface, measure):
 @settings(max_examples=15, deadline=None)
 @given(st.integers(0, 10_000), st.sampled_from([1e-5, 1.0, 1e5]))
 def test_random_convex_hulls_open_at_any_scale(seed, scale):
-    s = shapes.random_convex(seed, 1, scale)
+    s = scenes.random_convex(seed, 1, scale)
     np.testing.assert_array_equal(embree_ao(s, n_rays=32).ao, 1.0)
 
 
@@ -90,7 +90,7 @@ def test_parallel_plates_with_max_distance(half, r):
     # cosine-weighted: a ray from the lower plate reaches the upper one within r iff
     # cos(theta) >= gap / r, so ao = P(cos < gap / r) = (gap / r)^2.
     gap = 0.25
-    s = shapes.parallel_plates(gap, half, cells=8)
+    s = scenes.parallel_plates(gap, half, cells=8)
     centre = int(np.argmin(np.linalg.norm(s.positions - [0, 0, 0], axis=1)))
     n = 1024
     ao = embree_ao(s, n_rays=n, max_distance=r).ao[centre]
@@ -101,7 +101,7 @@ def test_parallel_plates_with_max_distance(half, r):
 def test_matches_independent_float64_tracer():
     # Same origins and directions, Moller-Trumbore in float64 instead of Embree: the
     # estimates agree except for rays grazing an edge within float32 rounding.
-    s, _ = shapes.sphere_on_ground(0.5, 2, gap=0.05, cells=6)
+    s, _ = scenes.sphere_on_ground(0.5, 2, gap=0.05, cells=6)
     n = 32
     result = embree_ao(s, n_rays=n, seed=5)
     scene = Tracer(s.positions, s.faces)
@@ -113,7 +113,7 @@ def test_matches_independent_float64_tracer():
 
 
 def _scene_with_variety():
-    s, _ = shapes.sphere_on_ground(0.5, 3, gap=0.0, cells=12)
+    s, _ = scenes.sphere_on_ground(0.5, 3, gap=0.0, cells=12)
     return s
 
 
@@ -136,7 +136,7 @@ def test_stratified_beats_random_and_converges():
 
 
 def test_far_from_origin_matches_origin():
-    s, _ = shapes.sphere_on_ground(0.5, 3, gap=0.0, cells=12)
+    s, _ = scenes.sphere_on_ground(0.5, 3, gap=0.0, cells=12)
     size = np.ptp(s.positions, axis=0).max()
     moved = surface_from_arrays(
         s.positions + 1e4 * size * np.array([1.0, -0.7, 0.3]), s.faces, s.normals
@@ -153,7 +153,7 @@ def test_far_from_origin_matches_origin():
 def test_contact_vertex_stays_occluded(gap):
     # The sphere's lowest vertex faces straight down onto the floor it rests on (or
     # touches, or sinks slightly into): its whole hemisphere is blocked.
-    s, low = shapes.sphere_on_ground(0.5, 3, gap=gap)
+    s, low = scenes.sphere_on_ground(0.5, 3, gap=gap)
     r = embree_ao(s, n_rays=256)
     assert r.ao[low] == 0.0
     near = np.flatnonzero((np.arange(s.n_vertices) < 642) & (s.positions[:, 2] - gap < 0.02))
@@ -163,7 +163,7 @@ def test_contact_vertex_stays_occluded(gap):
 def test_scene_diagonal_bias_without_contact_fix_reproduces_the_peer_bug():
     # What peers do (offset 1e-3 * diagonal, nothing else) reads the contact open: the
     # test above can tell a right answer from this wrong one.
-    s, low = shapes.sphere_on_ground(0.5, 3, gap=0.0)
+    s, low = scenes.sphere_on_ground(0.5, 3, gap=0.0)
     diag = np.linalg.norm(np.ptp(s.positions, axis=0))
     bad = estimate(s, EmbreeOptions(n_rays=256, bias=1e-3 * diag), contact_fix=False).ao
     assert bad[low] == 1.0
@@ -181,7 +181,7 @@ def test_cube_on_floor_coplanar_contact():
 
     cube = trimesh.creation.box(extents=(1, 1, 1))
     cube.apply_translation([0, 0, 0.5])
-    gp, gf = shapes.ground_grid(3.0, 5)  # no floor vertex at the cube corners
+    gp, gf = scenes.ground_grid(3.0, 5)  # no floor vertex at the cube corners
     s = surface_from_arrays(np.vstack([cube.vertices, gp]), np.vstack([cube.faces, gf + 8]))
     corner = int(
         np.flatnonzero(
@@ -207,7 +207,7 @@ def test_cube_on_floor_coplanar_contact():
 
 def test_two_sided_sheet_is_not_a_contact():
     # Two coincident sheets facing apart: both sides open; the contact fix must not flip them.
-    p, f = shapes.ground_grid(1.0, 4)
+    p, f = scenes.ground_grid(1.0, 4)
     positions = np.vstack([p, p])
     faces = np.vstack([f, f[:, ::-1] + len(p)])
     normals = np.zeros_like(positions)
@@ -254,7 +254,7 @@ def test_half_width_never_zero():
 
 def test_vertex_without_normal_samples_sphere():
     # An isolated vertex in the middle of a closed sphere: blocked in every direction.
-    s = shapes.sphere(1.0, 2)
+    s = scenes.sphere(1.0, 2)
     positions = np.vstack([s.positions, [[0.0, 0.0, 0.0]]])
     t = surface_from_arrays(positions, s.faces)
     assert not t.normals[-1].any()
@@ -262,7 +262,7 @@ def test_vertex_without_normal_samples_sphere():
 
 
 def test_degenerate_and_duplicate_geometry_is_finite():
-    s = shapes.sphere(1.0, 2)
+    s = scenes.sphere(1.0, 2)
     positions = np.vstack([s.positions, s.positions[:3], [[5.0, 5.0, 5.0]]])
     n0 = len(s.positions)
     faces = np.vstack([s.faces, [[0, 0, 1], [n0, n0 + 1, n0 + 2], [2, 2, 2]]])
@@ -283,7 +283,7 @@ def test_degenerate_and_duplicate_geometry_is_finite():
 )
 def test_bad_options_rejected(bad):
     with pytest.raises(ValueError):
-        embree_ao(shapes.box(), **bad)
+        embree_ao(scenes.box(), **bad)
 
 
 # --------------------------------------------------------------------------- topology kernels
@@ -375,7 +375,7 @@ def test_shell_labels_match_lexsort_runs(seed):
 
 
 def test_shell_labels_on_contact_scenes():
-    s, _ = shapes.sphere_on_ground(0.5, 3, gap=0.0)
+    s, _ = scenes.sphere_on_ground(0.5, 3, gap=0.0)
     labels = shell_labels(s)
     np.testing.assert_array_equal(labels, _lexsort_shell_labels(s))
     assert labels.max() == 1

@@ -26,8 +26,7 @@ from aobake.field import (
 )
 from aobake.mesh import surface_from_arrays
 from aobake.methods.embree import embree_ao
-
-import shapes
+from aobake.testing import scenes
 
 # --------------------------------------------------------------------------- cap integral
 
@@ -94,7 +93,7 @@ def exact_convex_distance(s, centre, dirs):
 
 @pytest.mark.parametrize(
     "surface",
-    [shapes.box((1.0, 2.0, 3.0)), shapes.sphere(1.0, 2), shapes.random_convex(4, 2, scale=100.0)],
+    [scenes.box((1.0, 2.0, 3.0)), scenes.sphere(1.0, 2), scenes.random_convex(4, 2, scale=100.0)],
     ids=["box", "icosphere", "affine"],
 )
 def test_hull_distance_is_exact_on_convex_polyhedra(surface):
@@ -108,7 +107,7 @@ def test_hull_distance_is_exact_on_convex_polyhedra(surface):
 
 def test_hull_distance_of_a_nonconvex_mesh_is_its_hulls():
     # a box with a dent on top (a vertex pushed in): the hull is the box
-    box = shapes.box((2.0, 2.0, 2.0))
+    box = scenes.box((2.0, 2.0, 2.0))
     dented = np.vstack([box.positions, [[0.0, 0.0, 0.2]]])
     top = np.flatnonzero(np.isclose(box.positions[:, 2], 1.0))
     extra = np.array([[top[0], top[1], 8], [top[1], top[2], 8]])
@@ -123,7 +122,7 @@ def test_hull_distance_of_a_nonconvex_mesh_is_its_hulls():
 
 @pytest.fixture(scope="module")
 def ball():
-    return shapes.sphere(1.0, 3)
+    return scenes.sphere(1.0, 3)
 
 
 @pytest.fixture(scope="module")
@@ -178,7 +177,7 @@ def test_sphere_field_directions_point_to_the_centre(ball_fields):
 
 @pytest.fixture(scope="module")
 def box_setup():
-    box = shapes.box((1.0, 1.6, 0.8))
+    box = scenes.box((1.0, 1.6, 0.8))
     f = fit_field(box, sampler="raster", resolution=16, radial_samples=12, raster_size=48)
     return box, f
 
@@ -191,7 +190,7 @@ def box_setup():
 )
 def test_box_field_against_embree(box_setup, gap, rmse, worst):
     box, f = box_setup
-    gp, gf = shapes.ground_grid(2.0, 16, z=-0.4 - gap)
+    gp, gf = scenes.ground_grid(2.0, 16, z=-0.4 - gap)
     scene = surface_from_arrays(np.vstack([gp, box.positions]), np.vstack([gf, box.faces + len(gp)]))
     ref = embree_ao(scene, n_rays=1024).ao[: len(gp)]
     got = field_ao(f, gp, scene.normals[: len(gp)])
@@ -211,7 +210,7 @@ def test_fit_does_not_depend_on_threads(box_setup):
 
 
 def test_flat_plate_has_empty_directions_and_no_nan():
-    gp, gf = shapes.ground_grid(1.0, 2)
+    gp, gf = scenes.ground_grid(1.0, 2)
     plate = surface_from_arrays(gp, gf)
     # odd resolution: a row of texel centres lies in the plate's plane, edge-on
     f = fit_field(plate, resolution=3, radial_samples=6, raster_size=16)
@@ -287,7 +286,7 @@ def test_rigid_transform_conventions():
 
 
 def _tiny_field() -> AOField:
-    return fit_field(shapes.box((1.0, 1.0, 1.0)), resolution=1, radial_samples=3, raster_size=8)
+    return fit_field(scenes.box((1.0, 1.0, 1.0)), resolution=1, radial_samples=3, raster_size=8)
 
 
 def test_several_fields_multiply(ball_fields):
@@ -417,9 +416,9 @@ def cli_files(tmp_path_factory):
     import trimesh
 
     d = tmp_path_factory.mktemp("cli")
-    box = shapes.box((1.0, 1.0, 1.0))
+    box = scenes.box((1.0, 1.0, 1.0))
     trimesh.Trimesh(box.positions, box.faces, process=False).export(d / "box.ply")
-    gp, gf = shapes.ground_grid(2.0, 8, z=-0.5)
+    gp, gf = scenes.ground_grid(2.0, 8, z=-0.5)
     trimesh.Trimesh(gp, gf, process=False).export(d / "ground.ply")
     return d
 

@@ -10,12 +10,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from aobake.methods.bunnell import bunnell_ao
 from aobake.field import field_ao, fit_field, rigid_transform
 from aobake.mesh import surface_from_arrays
+from aobake.methods.bunnell import bunnell_ao
 from aobake.methods.embree import embree_ao
-
-import hard_cases
+from aobake.testing import hard_cases
 
 
 def _embree(s, **kw):
@@ -98,12 +97,12 @@ def test_bowl_bottom_sees_the_rim_at_45_degrees_and_fins_occlude_each_other(surf
     # From the bottom of a hemispherical bowl the rim is 45 degrees off the normal: the
     # open cone holds sin^2(45) = 1/2 of the cosine-weighted hemisphere; for the actual
     # polygonal rim, Lambert's polygon form factor gives the exact open fraction.
-    from shapes import polygon_form_factor
+    from aobake.testing.closed_forms import polygon_form_factor
 
     s = surfaces["open_bowl"]
     bottom, rim = 0, s.positions[-48:]
     assert s.normals[bottom, 2] == 1.0
-    exact = polygon_form_factor(s.positions[bottom], s.normals[bottom], rim)
+    exact = polygon_form_factor(rim, s.positions[bottom], s.normals[bottom])
     assert abs(exact - 0.5) < 0.01
     n = 1024
     ao = embree_ao(s, n_rays=n).ao

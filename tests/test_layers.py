@@ -22,8 +22,7 @@ LAYERS = {
     "tracing": 3, "contacts": 3,
     "io": 3,
     "methods": 4, "field": 4, "raster": 4,
-    "pipeline": 5, "compare": 5, "sweep": 5, "preview": 5,
-    "plot": 5,
+    "pipeline": 5, "tools": 5, "testing": 5,
     "cli": 6, "__main__": 6, "__init__": 6,
 }  # fmt: skip
 
@@ -33,7 +32,7 @@ ROOMS = ("methods.embree", "methods.bunnell", "methods.fields")
 # The only modules that may import these libraries (prefixes).
 OWNERS = {
     "embreex": ("tracing",),
-    "trimesh": ("io.trimesh_formats",),
+    "trimesh": ("io.trimesh_formats", "testing"),  # testing: procedural scenes (icospheres, boxes)
 }
 
 
@@ -116,6 +115,14 @@ def test_methods_never_import_each_other(path):
         assert other is None or other == mine, f"{module_name(path)} imports {name} of {other}"
 
 
+@pytest.mark.parametrize("path", SOURCES, ids=module_name)
+def test_only_tests_and_bench_use_the_testing_package(path):
+    if module_name(path).startswith("testing"):
+        return
+    for name in imports(path):
+        assert not name.startswith("testing"), f"{module_name(path)} imports {name}"
+
+
 @pytest.mark.parametrize("path", sorted((PACKAGE / "kernels").rglob("*.py")), ids=module_name)
 def test_kernels_import_only_kernels_and_constants(path):
     for name in imports(path):
@@ -165,6 +172,11 @@ HEAVY = {"numpy", "numba", "trimesh", "embreex", "pxr", "matplotlib"}
 def test_light_imports(statement):
     loaded = _loaded_after(statement)
     assert not HEAVY & loaded, f"`{statement}` pulls in {sorted(HEAVY & loaded)}"
+
+
+@pytest.mark.parametrize("module", ["tools.compare", "tools.sweep", "tools.preview"])
+def test_tools_import_matplotlib_lazily(module):
+    assert "matplotlib" not in _loaded_after(f"import aobake.{module}")
 
 
 def test_io_import_is_light():

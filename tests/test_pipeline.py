@@ -12,14 +12,13 @@ import aobake
 from aobake.errors import FormatError, InputError
 from aobake.io import read_bake
 from aobake.progress import NullProgress, StderrProgress, make_progress
-
-import shapes
+from aobake.testing import scenes
 
 
 def test_bake_accepts_trimesh_surface_and_path(tmp_path):
     box = trimesh.creation.box()
     np.testing.assert_array_equal(aobake.bake(box, n_rays=8), 1.0)
-    s, _ = shapes.sphere_on_ground(0.5, 2, cells=4)
+    s, _ = scenes.sphere_on_ground(0.5, 2, cells=4)
     a = aobake.bake(s, n_rays=16, seed=3)
     path = tmp_path / "s.ply"
     trimesh.Trimesh(s.positions, s.faces, process=False).export(path)
@@ -30,7 +29,7 @@ def test_bake_accepts_trimesh_surface_and_path(tmp_path):
 
 
 def test_bake_file_roundtrip_and_report(tmp_path):
-    s, _ = shapes.sphere_on_ground(0.5, 2, cells=4)
+    s, _ = scenes.sphere_on_ground(0.5, 2, cells=4)
     src = tmp_path / "s.ply"
     trimesh.Trimesh(s.positions, s.faces, process=False).export(src)
     out = tmp_path / "s_ao.usdc"
@@ -65,14 +64,14 @@ def test_progress_bar_only_on_a_terminal():
     stream = Tty()
     bar = make_progress(False, stream)
     assert isinstance(bar, StderrProgress)
-    s, _ = shapes.sphere_on_ground(0.5, 2, cells=4)
+    s, _ = scenes.sphere_on_ground(0.5, 2, cells=4)
     aobake.bake(s, n_rays=8, progress=bar)
     text = stream.getvalue()
     assert "embree [" in text and "100.0%" in text and text.endswith("\n")
 
 
 def test_several_outputs_from_one_bake(tmp_path):
-    s, _ = shapes.sphere_on_ground(0.5, 2, cells=4)
+    s, _ = scenes.sphere_on_ground(0.5, 2, cells=4)
     src = tmp_path / "s.ply"
     trimesh.Trimesh(s.positions, s.faces, process=False).export(src)
     outs = [tmp_path / "a.ply", tmp_path / "a.usda"]
@@ -84,7 +83,7 @@ def test_several_outputs_from_one_bake(tmp_path):
 def test_failure_in_second_output_leaves_neither(tmp_path, monkeypatch):
     import aobake.io
 
-    s, _ = shapes.sphere_on_ground(0.5, 2, cells=4)
+    s, _ = scenes.sphere_on_ground(0.5, 2, cells=4)
     src = tmp_path / "s.ply"
     trimesh.Trimesh(s.positions, s.faces, process=False).export(src)
     real = aobake.io.write_bake

@@ -10,7 +10,7 @@ import pytest
 from click.testing import CliRunner
 
 from aobake.cli import main
-from aobake.preview import png_bytes, render_values
+from aobake.tools.preview import png_bytes, render_values
 
 
 def _decode_png(data: bytes) -> np.ndarray:
@@ -81,9 +81,9 @@ def test_values_interpolate_between_vertices():
 def baked(tmp_path):
     import trimesh
 
-    import shapes
+    from aobake.testing import scenes
 
-    s, _ = shapes.sphere_on_ground(0.5, 2, cells=4)
+    s, _ = scenes.sphere_on_ground(0.5, 2, cells=4)
     src = tmp_path / "s.ply"
     trimesh.Trimesh(s.positions, s.faces, process=False).export(src)
     out = tmp_path / "s_ao.ply"

@@ -10,8 +10,7 @@ import trimesh
 
 from aobake.field import embree_occlusion
 from aobake.raster import cube_texels, raster_occlusion
-
-import shapes
+from aobake.testing import scenes
 
 
 def sphere_omega(radius, r):
@@ -92,7 +91,7 @@ def test_single_triangle_exact():
 
 
 def test_point_on_a_triangle_gives_finite_values():
-    s = shapes.box((1.0, 1.0, 1.0))
+    s = scenes.box((1.0, 1.0, 1.0))
     points = np.array([[0.5, 0.0, 0.0], [0.5, 0.5, 0.5], [0.0, 0.0, 0.0]])  # face, corner, inside
     om, vec = raster_occlusion(s.positions, s.faces, points, size=16)
     assert np.isfinite(om).all() and np.isfinite(vec).all()
@@ -100,9 +99,9 @@ def test_point_on_a_triangle_gives_finite_values():
 
 
 def _scenes():
-    box = shapes.box((1.0, 2.0, 0.5))
-    convex = shapes.random_convex(3, subdivisions=2)
-    plate_p, plate_f = shapes.ground_grid(1.0, 4)
+    box = scenes.box((1.0, 2.0, 0.5))
+    convex = scenes.random_convex(3, subdivisions=2)
+    plate_p, plate_f = scenes.ground_grid(1.0, 4)
     cup = trimesh.creation.annulus(r_min=0.5, r_max=1.0, height=0.6)
     return {
         "box": (box.positions, box.faces),

@@ -10,9 +10,8 @@ import trimesh
 from click.testing import CliRunner
 
 from aobake.cli import main
-from aobake.sweep import SweepRow, mark_pareto, run_sweep
-
-import shapes
+from aobake.testing import scenes
+from aobake.tools.sweep import SweepRow, mark_pareto, run_sweep
 
 
 def _row(label, seconds, rmse):
@@ -45,7 +44,7 @@ def test_run_sweep_scores_against_reference():
 
 
 def test_cli_sweep_writes_table_csv_json_png_and_caches(tmp_path, monkeypatch):
-    s, _ = shapes.sphere_on_ground(0.5, 2, cells=4)
+    s, _ = scenes.sphere_on_ground(0.5, 2, cells=4)
     src = tmp_path / "s.ply"
     trimesh.Trimesh(s.positions, s.faces, process=False).export(src)
     out = tmp_path / "sweep"
@@ -105,7 +104,7 @@ def test_cli_sweep_writes_table_csv_json_png_and_caches(tmp_path, monkeypatch):
 
 
 def test_sweep_field_rows_score_the_ground(tmp_path, monkeypatch):
-    import aobake.sweep as sweep_mod
+    import aobake.tools.sweep as sweep_mod
 
     monkeypatch.setattr(
         sweep_mod,
@@ -115,7 +114,7 @@ def test_sweep_field_rows_score_the_ground(tmp_path, monkeypatch):
             ("field", "N=6", {"resolution": 6, "radial_samples": 8, "raster_size": 16}),
         ],
     )
-    s = shapes.sphere(0.5, 2)
+    s = scenes.sphere(0.5, 2)
     src = tmp_path / "ball.ply"
     trimesh.Trimesh(s.positions, s.faces, process=False).export(src)
     from aobake.pipeline import sweep_file

@@ -5,7 +5,7 @@ The only module that imports matplotlib; importing it loads nothing heavy.
 
 from __future__ import annotations
 
-from .errors import AobakeError
+from ..errors import AobakeError
 
 
 def pyplot():

@@ -12,8 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import InputError
-from .io import atomic_write
+from ..errors import InputError
+from ..io import atomic_write
 from .plot import pyplot
 
 

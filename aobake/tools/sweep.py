@@ -16,14 +16,14 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from .io import atomic_write
+from ..io import atomic_write
 from .plot import pyplot
 
 #: Default grid: (method, label, options). Embree 4..1024 rays, with and without
 #: adaptivity; Bunnell passes and opening parameter (when that method is available).
 EMBREE_RAYS = (4, 16, 64, 256, 1024)
 ADAPTIVE_TOLERANCES = (0.05, 0.02)
-# (passes, theta, per-direction saturation); the last row: plain sums, the old default
+# (passes, theta, per-direction saturation); the last row: plain sums, for contrast
 BUNNELL_GRID = ((1, 2.0, True), (1, 4.0, True), (1, 8.0, True), (2, 2.0, True), (1, 4.0, False))
 FIELD_RESOLUTIONS = (8, 16, 32)
 

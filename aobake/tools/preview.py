@@ -14,8 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .io import atomic_write
-from .kernels import render as _k
+from ..io import atomic_write
+from ..kernels import render as _k
 
 #: Named views: (azimuth, elevation) in degrees, azimuth about the up axis from +X.
 VIEWS = {"front": (-90.0, 10.0), "side": (0.0, 10.0), "top": (-90.0, 89.0), "iso": (-55.0, 30.0)}

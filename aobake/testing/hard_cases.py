@@ -1,38 +1,23 @@
 """Generators of meshes that break AO bakers: contacts, slivers, voxels, bad topology.
 
-Each returns a Surface; names match the hard-case list of the project's issue 5.
+Each returns a Surface; :data:`CASES` names them all.
 """
 
 from __future__ import annotations
 
 import numpy as np
-import trimesh
 
 from aobake.mesh import Surface, surface_from_arrays
 
-from shapes import ground_grid
-
-
-def _concat(meshes) -> tuple[np.ndarray, np.ndarray]:
-    positions, faces, offset = [], [], 0
-    for p, f in meshes:
-        positions.append(np.asarray(p, dtype=np.float64))
-        faces.append(np.asarray(f, dtype=np.int64) + offset)
-        offset += len(p)
-    return np.vstack(positions), np.vstack(faces)
-
-
-def _icosphere(radius, subdivisions, centre):
-    m = trimesh.creation.icosphere(subdivisions=subdivisions, radius=radius)
-    return m.vertices + np.asarray(centre), m.faces
+from .scenes import concat, ground_grid, icosphere
 
 
 def touching_spheres_on_plane() -> Surface:
     """Two unit-diameter spheres touching each other and a floor (no shared vertices)."""
-    a = _icosphere(0.5, 3, [-0.5, 0.0, 0.5])
-    b = _icosphere(0.5, 3, [0.5, 0.0, 0.5])
+    a = icosphere(3, 0.5, [-0.5, 0.0, 0.5])
+    b = icosphere(3, 0.5, [0.5, 0.0, 0.5])
     g = ground_grid(2.0, 9)
-    return surface_from_arrays(*_concat([a, b, g]))
+    return surface_from_arrays(*concat([a, b, g]))
 
 
 def menger_voxels(level: int = 2) -> Surface:
@@ -85,7 +70,7 @@ def close_plates(gap: float = 1e-3) -> Surface:
     """Two 1 x 1 grids ``gap`` apart, facing each other."""
     p0, f0 = ground_grid(0.5, 6, 0.0)
     p1, f1 = ground_grid(0.5, 6, gap)
-    positions, faces = _concat([(p0, f0), (p1, f1[:, ::-1])])
+    positions, faces = concat([(p0, f0), (p1, f1[:, ::-1])])
     normals = np.zeros_like(positions)
     normals[: len(p0), 2] = 1.0
     normals[len(p0) :, 2] = -1.0
@@ -123,14 +108,14 @@ def scaled(factor: float) -> Surface:
 
 
 def duplicated_faces() -> Surface:
-    p, f = _concat([_icosphere(0.5, 2, [0, 0, 0.5]), ground_grid(1.5, 6)])
+    p, f = concat([icosphere(2, 0.5, [0, 0, 0.5]), ground_grid(1.5, 6)])
     return surface_from_arrays(p, np.vstack([f, f, f[:10]]))
 
 
 def inverted_normals() -> Surface:
     """Sphere on a floor whose sphere winding is reversed (normals point inside)."""
-    sp, sf = _icosphere(0.5, 2, [0, 0, 0.5])
-    p, f = _concat([(sp, sf[:, ::-1]), ground_grid(1.5, 6)])
+    sp, sf = icosphere(2, 0.5, [0, 0, 0.5])
+    p, f = concat([(sp, sf[:, ::-1]), ground_grid(1.5, 6)])
     return surface_from_arrays(p, f)
 
 
