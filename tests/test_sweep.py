@@ -77,11 +77,12 @@ def test_cli_sweep_writes_table_csv_json_png_and_caches(tmp_path, monkeypatch):
     import aobake.methods.embree.estimator as rt
 
     calls = []
-    real = rt.embree_ao
+    real = rt.estimate  # every Embree bake, the grid's and the reference's, ends here
     monkeypatch.setattr(
         rt,
-        "embree_ao",
-        lambda *a, **k: calls.append((k.get("n_rays"), k.get("seed"))) or real(*a, **k),
+        "estimate",
+        lambda surface, options, *a, **k: calls.append((options.n_rays, options.seed))
+        or real(surface, options, *a, **k),
     )
     r2 = CliRunner().invoke(
         main,
