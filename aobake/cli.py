@@ -43,7 +43,7 @@ class FieldSpec(click.ParamType):
     """``FIELD.npz[@tx,ty,tz[,rx,ry,rz]]``: a field file and where its occluder goes.
 
     Translation in mesh units; rotation in degrees about the fixed x, then y, then z
-    axes, applied before the translation (``aobake.field.rigid_transform``). The text
+    axes, applied before the translation (``aobake.methods.fields.rigid_transform``). The text
     after the last ``@`` is read as the placement only when it is 3 or 6 numbers, so
     paths containing ``@`` still work.
     """
@@ -236,50 +236,70 @@ def bake(
         click.echo(report.summary(), err=True)
 
 
+class NumberRange(click.FloatRange):
+    """``click.FloatRange`` that refuses NaN, and infinity unless ``finite=False`` (usage
+    errors, as :func:`aobake.options.validate` would refuse them)."""
+
+    def __init__(self, *args, finite: bool = True, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.finite = finite
+
+    def convert(self, value, param, ctx):
+        value = super().convert(value, param, ctx)
+        if value != value or (self.finite and value in (float("inf"), float("-inf"))):
+            self.fail(f"{value} is not a {'finite ' if self.finite else ''}number.", param, ctx)
+        return value
+
+
+def _click_type(spec):
+    """The click type of an option field (:class:`aobake.options.Spec`)."""
+    if spec.choices is not None:
+        return click.Choice(list(spec.choices))
+    if spec.kind not in (int, float):
+        return None
+    bounds = {"min": spec.low, "max": spec.high, "min_open": spec.low_open, "max_open": spec.high_open}
+    if spec.kind is int:
+        return click.IntRange(**bounds)
+    return NumberRange(**bounds, finite=spec.finite)
+
+
+def options_from(options_class, skip: tuple[str, ...] = ()):
+    """Click options from the fields of a method's options class (:mod:`aobake.options`):
+    flag, type, range, default and help are spelled there once. A default of None shows
+    what None means: "[default: all cores]"."""
+    from .options import flag, specs
+
+    def decorate(f):
+        for name, (spec, default) in reversed(specs(options_class).items()):
+            if name in skip:
+                continue
+            kw = {"default": default, "help": spec.help}
+            if default is None and spec.none:
+                kw["help"] = spec.help.rstrip(".") + f" [default: {spec.none}]."
+            else:
+                kw["show_default"] = True
+            long = flag(name, spec)
+            if spec.kind is bool:
+                f = click.option(f"{long}/--no-{long[2:]}", name, **kw)(f)
+            else:
+                f = click.option(long, name, type=_click_type(spec), **kw)(f)
+        return f
+
+    return decorate
+
+
+def _field_options(f):
+    from .methods.fields.options import FieldOptions
+
+    return options_from(FieldOptions)(f)
+
+
 @main.command("field")
 @click.argument("occluder", type=click.Path(path_type=Path))
 @click.option("-o", "--output", required=True, type=click.Path(path_type=Path), help="Output FIELD.npz.")
-@click.option(
-    "--sampler",
-    type=click.Choice(["raster", "embree"]),
-    default="raster",
-    show_default=True,
-    help="Omega and Y at the sample points: CPU cube-map rasterizer or Embree rays.",
-)
-@click.option(
-    "--resolution", type=click.IntRange(min=1), default=16, show_default=True, help="Field texels per cube-face edge."
-)
-@click.option(
-    "--radial-samples", type=click.IntRange(min=3), default=15, show_default=True, help="Sample distances per texel."
-)
-@click.option(
-    "--raster-size", type=click.IntRange(min=1), default=32, show_default=True, help="Rasterizer cube-map edge (texels)."
-)
-@click.option("--rays", type=click.IntRange(min=1), default=1024, show_default=True, help="Embree rays per sample point.")
-@click.option(
-    "--r-far",
-    type=click.FloatRange(min=0, min_open=True),
-    default=None,
-    help="Outer radius of the field (mesh units) [default: 8 x the bounding radius].",
-)
-@click.option(
-    "--model",
-    type=click.Choice(["cap", "paper", "table"]),
-    default="cap",
-    show_default=True,
-    help="Radial model: 7 scalars per texel (cap: cap half-angle; paper: 1/Omega) or the sampled table.",
-)
-@click.option(
-    "--prefilter",
-    type=click.IntRange(min=1),
-    default=1,
-    show_default=True,
-    help="Box prefilter: sub-directions per texel edge.",
-)
-@common_options
-def field_command(
-    occluder, output, sampler, resolution, radial_samples, raster_size, rays, r_far, model, prefilter, seed, threads, quiet
-):
+@_field_options
+@click.option("--quiet", "-q", is_flag=True, help="No progress bar or summary on stderr.")
+def field_command(occluder, output, quiet, **options):
     """Fit the ambient occlusion field of the rigid OCCLUDER into FIELD.npz.
 
     Use it with `aobake bake RECEIVER -o OUT --field FIELD.npz[@tx,ty,tz[,rx,ry,rz]]`:
@@ -288,21 +308,7 @@ def field_command(
     from .pipeline import fit_field_file
     from .progress import make_progress
 
-    report = fit_field_file(
-        occluder,
-        output,
-        progress=make_progress(quiet),
-        sampler=sampler,
-        resolution=resolution,
-        radial_samples=radial_samples,
-        raster_size=raster_size,
-        rays=rays,
-        r_far=r_far,
-        model=model,
-        prefilter=prefilter,
-        seed=seed,
-        threads=threads,
-    )
+    report = fit_field_file(occluder, output, progress=make_progress(quiet), **options)
     if not quiet:
         click.echo(report.summary(), err=True)
 

@@ -21,7 +21,7 @@ LAYERS = {
     "mesh": 2, "sampling": 2, "progress": 2,
     "tracing": 3, "contacts": 3,
     "io_common": 3, "ply": 3, "readers": 3, "io_ply": 3, "io_usd": 3, "formats": 3,
-    "methods": 4, "bunnell": 4, "hierarchy": 4, "field": 4, "raster": 4,
+    "methods": 4, "bunnell": 4, "hierarchy": 4,
     "pipeline": 5, "compare": 5, "sweep": 5, "preview": 5,
     "cli": 6, "__main__": 6, "__init__": 6,
 }  # fmt: skip
