@@ -14,7 +14,14 @@ from field_scenes import plane_receivers
 from aobake.errors import InputError
 from aobake.mesh import surface_from_arrays
 from aobake.methods.embree import embree_ao
-from aobake.methods.fields import cap_integral, field_ao, fit_field, load_field, rigid_transform
+from aobake.methods.fields import (
+    FieldOptions,
+    cap_integral,
+    field_ao,
+    fit_field,
+    load_field,
+    rigid_transform,
+)
 
 import shapes
 
@@ -119,6 +126,16 @@ def test_bad_options_fail_fast(ball):
         fit_field(ball, r_far=0.5)
     with pytest.raises(ValueError, match="model"):
         fit_field(ball, model="spline")
+    with pytest.raises(TypeError, match="FieldOptions has no option 'rays'"):
+        fit_field(ball, rays=16)
+
+
+def test_options_instance_and_keywords_agree(box_setup):
+    box, _ = box_setup
+    kw = dict(resolution=3, radial_samples=5, raster_size=16)
+    a = fit_field(box, FieldOptions(**kw))
+    b = fit_field(box, FieldOptions(resolution=5), **{**kw, "resolution": 3})
+    np.testing.assert_array_equal(a.texels, b.texels)
 
 
 def test_translated_occluder_gives_the_same_field(box_setup):
@@ -227,6 +244,16 @@ def test_cli_field_errors(cli_files, tmp_path):
     assert r.exit_code == 1 and r.stderr.startswith("Error: box.ply: r_far 0.1 must exceed")
     assert not (tmp_path / "f.npz").exists()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.npz"]
+
+
+def test_field_command_is_built_from_field_options():
+    from aobake.options import flag, specs
+
+    text = _run(["field", "--help"]).output
+    for name, (spec, default) in specs(FieldOptions).items():
+        assert flag(name, spec) in text, name
+        shown = f"[default: {spec.none}]" if default is None else f"[default: {default}]"
+        assert shown in " ".join(text.split()), (name, shown)
 
 
 def test_field_spec_parsing():

@@ -1,7 +1,7 @@
 """The cosine-weighted occlusion of a spherical cap, C(Omega, cos theta): closed form and
 table lookup (the last step of evaluating an AO field).
 
-Imports numpy, numba and aobake.constants only.
+Imports numba and aobake.constants only.
 
 References
 ----------

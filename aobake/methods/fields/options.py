@@ -33,6 +33,7 @@ class FieldOptions:
         to r_far; fewer starve the contact region, more cost linearly.
     raster_size : int
         Cube-map edge of the raster sampler: 6 size^2 texels around each sample point.
+        Larger mostly sharpens silhouettes, while the radial model limits the fit.
     n_rays : int
         Rays per sample point of the Embree sampler (``--rays``): uniform over the
         sphere, Owen-scrambled Sobol; Omega's standard error is below
