@@ -252,7 +252,7 @@ def test_field_command_is_built_from_field_options():
     text = _run(["field", "--help"]).output
     for name, (spec, default) in specs(FieldOptions).items():
         assert flag(name, spec) in text, name
-        shown = f"[default: {spec.none}]" if default is None else f"[default: {default}]"
+        shown = f"[default: {spec.none}]" if default is None else f"[default: {default}"
         assert shown in " ".join(text.split()), (name, shown)
 
 
