@@ -44,7 +44,7 @@ class FieldSpec(click.ParamType):
     """``FIELD.npz[@tx,ty,tz[,rx,ry,rz]]``: a field file and where its occluder goes.
 
     Translation in mesh units; rotation in degrees about the fixed x, then y, then z
-    axes, applied before the translation (``aobake.field.rigid_transform``). The text
+    axes, applied before the translation (``aobake.methods.fields.rigid_transform``). The text
     after the last ``@`` is read as the placement only when it is 3 or 6 numbers, so
     paths containing ``@`` still work.
     """
@@ -78,7 +78,7 @@ def common_options(f):
     f = click.option("--quiet", "-q", is_flag=True, help="No progress bar or summary on stderr.")(f)
     for name, field in (("threads", threads_option()), ("seed", seed_option())):
         spec = field.metadata["spec"]
-        f = _option(name, spec, field.default, default_value=field.default)(f)
+        f = _option(name, spec, field.default)(f)
     return f
 
 
@@ -92,14 +92,31 @@ def main():
     """
 
 
+class NumberRange(click.FloatRange):
+    """``click.FloatRange`` that refuses NaN, and infinity unless ``finite=False`` (usage
+    errors, as :func:`aobake.options.validate` would refuse them)."""
+
+    def __init__(self, *args, finite: bool = True, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.finite = finite
+
+    def convert(self, value, param, ctx):
+        value = super().convert(value, param, ctx)
+        if value != value or (self.finite and value in (float("inf"), float("-inf"))):
+            self.fail(f"{value} is not a {'finite ' if self.finite else ''}number.", param, ctx)
+        return value
+
+
 def _click_type(spec):
     """The click type of an option field (:class:`aobake.options.Spec`)."""
     if spec.choices is not None:
         return click.Choice(list(spec.choices))
-    if spec.kind in (int, float):
-        kind = click.IntRange if spec.kind is int else click.FloatRange
-        return kind(min=spec.low, max=spec.high, min_open=spec.low_open, max_open=spec.high_open)
-    return spec.kind
+    if spec.kind not in (int, float):
+        return None
+    bounds = {"min": spec.low, "max": spec.high, "min_open": spec.low_open, "max_open": spec.high_open}
+    if spec.kind is int:
+        return click.IntRange(**bounds)
+    return NumberRange(**bounds, finite=spec.finite)
 
 
 def _method_fields() -> dict:
@@ -125,24 +142,40 @@ def _shown(spec, default) -> str:
     return f"{default:g}" if spec.kind is float else str(default)
 
 
-def _option(name: str, spec, default, *, default_value=None, text: str | None = None):
-    """The click option of an option field (flag, type, help and shown default from it)."""
+def _option(name: str, spec, default, *, set_default: bool = True, text: str | None = None):
+    """The click option of an option field: flag, type, range, help and shown default from
+    its :class:`aobake.options.Spec`. ``set_default=False`` leaves the click default None,
+    so a command can tell what the user set (the options class fills in the rest)."""
     from .options import flag
 
     decl = flag(name, spec)
     if spec.kind is bool:
         decl = f"{decl}/--no-{decl[2:]}"
     text = text or spec.help
-    if default_value is None:  # click would show the None: say what it stands for
-        text += f" [default: {_shown(spec, default)}]"
+    shown = set_default and default is not None
+    if not shown:  # click would show None: say what it stands for
+        text = text.rstrip(".") + f" [default: {_shown(spec, default)}]."
     return click.option(
         decl,
         name,
         type=None if spec.kind is bool else _click_type(spec),
-        default=default_value,
-        show_default=default_value is not None,
+        default=default if set_default else None,
+        show_default=shown,
         help=text,
     )
+
+
+def options_from(options_class, skip: tuple[str, ...] = ()):
+    """Click options from the fields of an options class (:mod:`aobake.options`)."""
+    from .options import specs
+
+    def decorate(f):
+        for name, (spec, default) in reversed(specs(options_class).items()):
+            if name not in skip:
+                f = _option(name, spec, default)(f)
+        return f
+
+    return decorate
 
 
 def method_options(f):
@@ -154,7 +187,7 @@ def method_options(f):
 
     for name, (spec, default, owners) in reversed(_method_fields().items()):
         text = spec.help if len(owners) == len(METHODS) else f"{'/'.join(owners)}: {spec.help}"
-        f = _option(name, spec, default, text=text)(f)
+        f = _option(name, spec, default, set_default=False, text=text)(f)
     return f
 
 
@@ -239,50 +272,18 @@ def bake(mesh, output, method, color, up, meters_per_unit, fields, seed, threads
         click.echo(report.summary(), err=True)
 
 
+def _field_options(f):
+    from .methods.fields.options import FieldOptions
+
+    return options_from(FieldOptions)(f)
+
+
 @main.command("field")
 @click.argument("occluder", type=click.Path(path_type=Path))
 @click.option("-o", "--output", required=True, type=click.Path(path_type=Path), help="Output FIELD.npz.")
-@click.option(
-    "--sampler",
-    type=click.Choice(["raster", "embree"]),
-    default="raster",
-    show_default=True,
-    help="Omega and Y at the sample points: CPU cube-map rasterizer or Embree rays.",
-)
-@click.option(
-    "--resolution", type=click.IntRange(min=1), default=16, show_default=True, help="Field texels per cube-face edge."
-)
-@click.option(
-    "--radial-samples", type=click.IntRange(min=3), default=15, show_default=True, help="Sample distances per texel."
-)
-@click.option(
-    "--raster-size", type=click.IntRange(min=1), default=32, show_default=True, help="Rasterizer cube-map edge (texels)."
-)
-@click.option("--rays", type=click.IntRange(min=1), default=1024, show_default=True, help="Embree rays per sample point.")
-@click.option(
-    "--r-far",
-    type=click.FloatRange(min=0, min_open=True),
-    default=None,
-    help="Outer radius of the field (mesh units) [default: 8 x the bounding radius].",
-)
-@click.option(
-    "--model",
-    type=click.Choice(["cap", "paper", "table"]),
-    default="cap",
-    show_default=True,
-    help="Radial model: 7 scalars per texel (cap: cap half-angle; paper: 1/Omega) or the sampled table.",
-)
-@click.option(
-    "--prefilter",
-    type=click.IntRange(min=1),
-    default=1,
-    show_default=True,
-    help="Box prefilter: sub-directions per texel edge.",
-)
-@common_options
-def field_command(
-    occluder, output, sampler, resolution, radial_samples, raster_size, rays, r_far, model, prefilter, seed, threads, quiet
-):
+@_field_options
+@click.option("--quiet", "-q", is_flag=True, help="No progress bar or summary on stderr.")
+def field_command(occluder, output, quiet, **options):
     """Fit the ambient occlusion field of the rigid OCCLUDER into FIELD.npz.
 
     Use it with `aobake bake RECEIVER -o OUT --field FIELD.npz[@tx,ty,tz[,rx,ry,rz]]`:
@@ -291,21 +292,7 @@ def field_command(
     from .pipeline import fit_field_file
     from .progress import make_progress
 
-    report = fit_field_file(
-        occluder,
-        output,
-        progress=make_progress(quiet),
-        sampler=sampler,
-        resolution=resolution,
-        radial_samples=radial_samples,
-        raster_size=raster_size,
-        rays=rays,
-        r_far=r_far,
-        model=model,
-        prefilter=prefilter,
-        seed=seed,
-        threads=threads,
-    )
+    report = fit_field_file(occluder, output, progress=make_progress(quiet), **options)
     if not quiet:
         click.echo(report.summary(), err=True)
 

@@ -149,11 +149,11 @@ def bake_file(
     else "Y" and 1.0.
 
     ``fields``: ambient occlusion fields of rigid occluders placed around the mesh,
-    each an :class:`~aobake.field.AOField` or a ``.npz`` path, alone or as
+    each an :class:`~aobake.methods.fields.AOField` or a ``.npz`` path, alone or as
     ``(field, transform)`` with a (4, 4) rigid transform or ``(tx, ty, tz[, rx, ry,
-    rz])`` (degrees, see :func:`~aobake.field.rigid_transform`). Loaded (and checked)
+    rz])`` (degrees, see :func:`~aobake.methods.fields.rigid_transform`). Loaded (and checked)
     before computing; the mesh's own AO from ``method`` is multiplied by every
-    field's 1 - A_k (:func:`~aobake.field.fields_ao`).
+    field's 1 - A_k (:func:`~aobake.methods.fields.fields_ao`).
 
     Returns
     -------
@@ -442,15 +442,14 @@ def fit_field_file(
     """Load an occluder, fit its ambient occlusion field, write ``output`` (.npz) atomically.
 
     The suffix and directory are checked before loading or fitting. ``options`` go to
-    :func:`aobake.field.fit_field` (``sampler``, ``resolution``, ``radial_samples``,
-    ``raster_size``, ``rays``, ``r_far``, ``prefilter``, ``model``, ``seed``,
-    ``threads``).
+    :func:`aobake.methods.fields.fit_field`: the fields of
+    :class:`~aobake.methods.fields.FieldOptions`.
 
     Returns
     -------
     FieldReport
     """
-    from .field import fit_field, save_field
+    from .methods.fields import fit_field, save_field
 
     output = Path(output)
     if output.suffix.lower() != ".npz":
@@ -470,7 +469,7 @@ def fit_field_file(
 
 def _load_fields(fields) -> list:
     """[(AOField, transform or None, name)] from AOFields, paths, or (item, transform)."""
-    from .field import AOField, load_field, rigid_transform
+    from .methods.fields import AOField, load_field, rigid_transform
 
     out = []
     for item in fields or ():
@@ -490,7 +489,7 @@ def _load_fields(fields) -> list:
 
 def _apply_fields(surface: Surface, ao: AOArray, placed: list, threads) -> tuple[AOArray, tuple]:
     """``ao`` times every field's 1 - A_k at the surface's vertices, and the skips."""
-    from .field import fields_ao
+    from .methods.fields import fields_ao
 
     result = fields_ao(
         [f for f, _, _ in placed],
@@ -506,10 +505,10 @@ def _field_sweep(surface, out_dir, key, up_axis, reference_rays, seed, threads, 
     """Rows for AO fields: ``surface`` as a rigid occluder on a ground grid (3 bounding
     radii each way, at its lowest point along ``up_axis``), scored
     on the ground vertices against Embree AO of occluder + ground."""
-    from .field import field_ao, fit_field
     from .io import atomic_write
     from .mesh import surface_from_arrays
     from .methods.embree import embree_ao
+    from .methods.fields import field_ao, fit_field
     from .tools import sweep
 
     up = 1 if up_axis.upper() == "Y" else 2

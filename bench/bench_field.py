@@ -1,4 +1,4 @@
-"""Benchmark of ambient occlusion fields (aobake.field): accuracy, fit time, size, speed.
+"""Benchmark of ambient occlusion fields (aobake.methods.fields): accuracy, fit time, size, speed.
 
 The scene: the bundled bunny (``data/bunny.ply``, +Y up) resting on a square ground grid
 at its lowest point, 3 bounding radii wide (101 x 101 vertices, normals +Y). The
@@ -6,11 +6,11 @@ reference is Embree AO on the ground cast by the bunny alone (4096 Owen-scramble
 rays per vertex, contact-aware origins; a flat ground does not occlude itself), cached
 under ``bench/results/``. For each configuration the table gives:
 
-- fit: wall seconds of :func:`aobake.field.fit_field` (JIT cache warm);
+- fit: wall seconds of :func:`aobake.methods.fields.fit_field` (JIT cache warm);
 - bytes: size of the written ``field.npz``;
 - RMSE / p99 / max of the field's ao on the ground against the reference, and the RMSE
   on the contact ring (ground vertices within 0.2 bounding radii of the hull);
-- eval: receivers per second of :func:`aobake.field.fields_ao` on 2 M receivers
+- eval: receivers per second of :func:`aobake.methods.fields.fields_ao` on 2 M receivers
   (best of 3, all numba threads), measured once per model.
 
 A "cap floor" row evaluates the spherical-cap approximation with exact Omega and Y at
@@ -31,11 +31,17 @@ from pathlib import Path
 
 import numpy as np
 
-from aobake.field import cap_integral, fields_ao, fit_field, hull_distance, save_field
 from aobake.io import load_mesh
 from aobake.mesh import surface_from_arrays
 from aobake.methods.embree import embree_ao
-from aobake.raster import raster_occlusion
+from aobake.methods.fields import (
+    cap_integral,
+    fields_ao,
+    fit_field,
+    hull_distance,
+    raster_occlusion,
+    save_field,
+)
 
 from common import DATA_DIR, RESULTS_DIR, machine_facts, markdown_table, rmse
 
@@ -97,7 +103,7 @@ def main() -> None:
 
     bunny, ground, normals, ref, radius = scene()
     x = ground - fit_field(bunny, resolution=1, radial_samples=3, raster_size=4).centre  # warm the JIT caches
-    fit_field(bunny, sampler="embree", resolution=1, radial_samples=3, rays=4)
+    fit_field(bunny, sampler="embree", resolution=1, radial_samples=3, n_rays=4)
     centre = ground[0] - x[0]
     near = (np.linalg.norm(x, axis=1) - hull_distance(bunny.positions, x, centre)) < 0.2 * radius
 

@@ -221,7 +221,7 @@ def test_bake_options_come_from_the_method_options_class(runner, monkeypatch, sc
     for name, (spec, default) in specs(cls).items():
         assert flag(name, spec) in text, name
         if name not in ("seed", "threads"):
-            assert f"{spec.help} [default: {_shown(spec, default)}]" in text, name
+            assert f"{spec.help.rstrip('.')} [default: {_shown(spec, default)}]." in text, name
     seen = {}
     original = methods.run
 

@@ -10,10 +10,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from aobake.field import field_ao, fit_field, rigid_transform
 from aobake.mesh import surface_from_arrays
 from aobake.methods.bunnell import bunnell_ao
 from aobake.methods.embree import embree_ao
+from aobake.methods.fields import field_ao, fit_field, rigid_transform
 from aobake.testing import hard_cases
 
 

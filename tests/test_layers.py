@@ -21,7 +21,7 @@ LAYERS = {
     "mesh": 2, "sampling": 2, "progress": 2,
     "tracing": 3, "contacts": 3,
     "io": 3,
-    "methods": 4, "field": 4, "raster": 4,
+    "methods": 4,
     "pipeline": 5, "tools": 5, "testing": 5,
     "cli": 6, "__main__": 6, "__init__": 6,
 }  # fmt: skip

@@ -53,7 +53,7 @@ for _mesh in ("bunny", "sphere_on_ground", "box_stack"):
     )
 CASES["sphere_on_ground/field-raster"] = ("sphere_on_ground", "field", {"resolution": 8})
 CASES["sphere_on_ground/field-embree"] = (
-    "sphere_on_ground", "field", {"resolution": 8, "sampler": "embree", "rays": 64, "seed": 2},
+    "sphere_on_ground", "field", {"resolution": 8, "sampler": "embree", "n_rays": 64, "seed": 2},
 )  # fmt: skip
 
 # The bunny (+Y up, 9.7 tall) stands up (+Z) on the ground, 12 units along +x, the ground
@@ -79,13 +79,13 @@ def platform_key() -> dict:
 def compute(name: str) -> np.ndarray:
     """The float64 result of case ``name`` (see CASES)."""
     import aobake
-    from aobake.field import field_ao, fit_field
     from aobake.io import load_mesh
+    from aobake.methods.fields import field_ao, fit_field
 
     mesh, method, options = CASES[name]
     if method != "field":
         return np.asarray(aobake.bake(str(DATA / f"{mesh}.ply"), method, **options), dtype=np.float64)
-    from aobake.field import rigid_transform
+    from aobake.methods.fields import rigid_transform
 
     field = fit_field(load_mesh(DATA / "bunny.ply"), **options)
     receiver = load_mesh(DATA / f"{mesh}.ply")

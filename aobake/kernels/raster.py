@@ -12,7 +12,7 @@ from numba import njit, prange
 
 from ..constants import FASTMATH
 
-#: Cube faces as (major axis, sign, u axis, v axis), the same layout as kernels/field.py.
+#: Cube faces as (major axis, sign, u axis, v axis), the same layout as kernels/field_eval.py.
 FACE_AXIS = np.array([0, 0, 1, 1, 2, 2], dtype=np.int64)
 FACE_SIGN = np.array([1.0, -1.0, 1.0, -1.0, 1.0, -1.0])
 FACE_U = np.array([1, 1, 2, 2, 0, 0], dtype=np.int64)

@@ -4,8 +4,12 @@ The sampler of Kontkanen & Laine (2005), section 4.1, without a GPU: around each
 the occluder's triangles are drawn into the six faces of a cube map (binary coverage at
 texel centres). Omega is the sum of the covered texels' exact solid angles (texels near
 a face's corner subtend less), and the occluded vector integral int V w dw the sum of
-their exact vector integrals. Numpy-facing wrapper of ``aobake.kernels.raster``;
-contains no @njit code. Imports numpy and aobake's kernels, errors and progress.
+their exact vector integrals. Numpy-facing wrapper of ``aobake.kernels.raster`` (``_k.*``).
+
+References
+----------
+J. Arvo, "Applications of Irradiance Tensors to the Simulation of Non-Lambertian
+Phenomena", SIGGRAPH 1995 (exact vector integral of a spherical polygon).
 """
 
 from __future__ import annotations
@@ -15,28 +19,18 @@ import math
 
 import numpy as np
 
-from ._types import FloatArray
-from .errors import NumericalError
-from .kernels import raster as _k
-from .progress import NullProgress, Progress
+from ..._types import FloatArray
+from ...checks import numba_threads
+from ...errors import NumericalError
+from ...kernels import raster as _k
+from ...progress import NullProgress, Progress
+from .layout import face_directions
+from .options import FieldOptions
 
-# Cube-map edge in texels for the rasterizer: 6 * 32^2 texels of 2e-3 sr on average.
-# Raising it mostly sharpens silhouettes; the field fit's error is dominated by its
-# radial model (bench/bench_field.py), so 32 balances accuracy and speed.
-DEFAULT_RASTER_SIZE = 32
 # Points per parallel task: scratch buffers are allocated once per task.
 _BLOCK = 8
 # Points per kernel call: progress granularity and memory bound only.
 _CHUNK = 4096
-
-
-def face_directions(face: int, u: FloatArray, v: FloatArray) -> FloatArray:
-    """Unnormalised directions (k, 3) of face coordinates (u, v) on cube face ``face``."""
-    d = np.zeros(np.broadcast(u, v).shape + (3,))
-    d[..., _k.FACE_AXIS[face]] = _k.FACE_SIGN[face]
-    d[..., _k.FACE_U[face]] = u
-    d[..., _k.FACE_V[face]] = v
-    return d
 
 
 def _rectangle_solid_angle(u0, u1, v0, v1):
@@ -96,7 +90,7 @@ def raster_occlusion(
     faces,
     points,
     *,
-    size: int = DEFAULT_RASTER_SIZE,
+    size: int = FieldOptions.raster_size,
     threads: int | None = None,
     progress: Progress | None = None,
 ) -> tuple[FloatArray, FloatArray]:
@@ -128,8 +122,6 @@ def raster_occlusion(
     Coordinates are recentred on the occluder's bounding-box centre in float64. A
     triangle through the point itself covers nothing (it projects to a line).
     """
-    from .checks import numba_threads
-
     size = int(size)
     if size < 1:
         raise ValueError(f"size must be >= 1, got {size}")

@@ -1,4 +1,4 @@
-"""The cube-map rasterizer sampler: exact texel tables, the sphere, agreement with Embree."""
+"""The cube-map rasterizer sampler (aobake.methods.fields.raster): exact texel tables, the sphere, agreement with Embree."""
 
 from __future__ import annotations
 
@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from aobake.field import embree_occlusion
-from aobake.raster import cube_texels, raster_occlusion
+from aobake.methods.fields.raster import cube_texels, raster_occlusion
+from aobake.methods.fields.rays import embree_occlusion
 from aobake.testing import scenes
 
 
