@@ -105,8 +105,9 @@ def trace_chunks(
     """
     own = pool is None
     pool = ThreadPoolExecutor(max_workers=max(1, int(threads))) if own else pool
-    futures = [pool.submit(work, chunk) for chunk in chunks]
-    try:
+    futures = []
+    try:  # queueing many chunks takes a while: a Ctrl-C then must drop them too
+        futures.extend(pool.submit(work, chunk) for chunk in chunks)
         for future in futures:
             progress.advance(future.result())
     finally:

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import math
 import os
-from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
@@ -54,13 +53,7 @@ def footprint_samples(positions, faces, geometry, *, n_rays, seed, threads, prog
     # each chunk sums its own points' rays in ray order: no dependence on threads
     per_chunk = max(1, CHUNK_RAYS // 4 // n_rays)
     workers = max(1, int(threads or os.cpu_count() or 1))
-    # our own pool, shut down here, so that Ctrl-C while the chunks are still being
-    # queued drops them too
-    pool = ThreadPoolExecutor(max_workers=workers)
-    try:
-        trace_chunks(split(np.arange(n, dtype=np.int64), per_chunk), trace, threads=workers, progress=progress, pool=pool)
-    finally:
-        pool.shutdown(wait=True, cancel_futures=True)
+    trace_chunks(split(np.arange(n, dtype=np.int64), per_chunk), trace, threads=workers, progress=progress)
     out *= 4.0 * math.pi / n_rays
     return out
 
