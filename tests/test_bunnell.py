@@ -137,7 +137,7 @@ ORACLE_TRIANGLE = np.array([[-1.0, -1.0, 1.0], [2.0, -1.0, 1.0], [0.0, 2.0, 1.0]
 
 @pytest.mark.parametrize("winding", [1, -1])
 def test_triangle_form_factor_oracle(winding):
-    """DESIGN 6: triangle (-1,-1,1), (2,-1,1), (0,2,1) above the origin, n = +z: 0.540025."""
+    """Closed form: triangle (-1,-1,1), (2,-1,1), (0,2,1) above the origin, n = +z: 0.540025."""
     tri = ORACLE_TRIANGLE[::winding]
     quad = np.vstack([tri, tri[:1]])  # a triangle is a quad with a repeated corner
     value = KP.clipped_quad(0.0, 0.0, 0.0, 0.0, 0.0, 1.0, quad, K.MEASURE_COSINE)
@@ -217,7 +217,7 @@ def test_cells_tile_the_surface():
 )
 @pytest.mark.parametrize("near", [0.0, DEFAULTS.near])
 def test_point_under_disk_mesh(exact, measure, oracle, near):
-    """DESIGN 6: a point facing a coaxial disk; many small disks sum to the closed form."""
+    """Closed form: a point facing a coaxial disk; many small disks sum to the closed form."""
     ao = B.variant_ao(receiver_under_disk(), measure=measure, exact=exact, near=near)
     # exact sum: discretisation only; default tree (theta 2): plus its (monopole, on-axis)
     # error, 0.013 for the cosine measure (0.004 at theta 4)

@@ -1,7 +1,7 @@
 """Per-texel fits of an AO field: the radial model of Omega by weighted least squares and
 Levenberg-Marquardt, and the characteristic point C_o of the mean occluded direction.
 
-Symbols follow DESIGN.md section 4: 1/Omega(r) = a r^2 + b r + c (or the cap model) and
+Symbols follow Kontkanen & Laine: 1/Omega(r) = a r^2 + b r + c (or the cap model) and
 Y(r) = normalize(C_o - x). Imports numpy, numba, aobake.constants and other kernels only.
 
 References

@@ -107,7 +107,7 @@ def fit_field(
     d_i log-spaced from 1e-3 bounding radii to r_far (:func:`~.layout.radial_layout`),
     so the contact region gets half of them.
 
-    Fits per texel (DESIGN.md section 4), with quadrature weights q_i = (the sample's
+    Fits per texel (Kontkanen & Laine 2005), with quadrature weights q_i = (the sample's
     share of r) x r_i, the room each sample stands for on a receiving plane
     (:func:`~.layout.quadrature_weights`):
 
