@@ -50,6 +50,7 @@ __all__ = [
     "is_near",
     "is_wide",
     "level_of",
+    "receiver_at",
     "receiver_factor",
     "sector_coords",
     "tent",
@@ -296,6 +297,15 @@ def settle_fill(dirs, store, row, mode):
     return refill(dirs, store, row, 0), refill(dirs, store, row, 1)
 
 
+@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+def receiver_at(points, normals, i):
+    """``(px, py, pz, nx, ny, nz, has_normal)`` of receiver i (a zero normal row: none)."""
+    nx = normals[i, 0]
+    ny = normals[i, 1]
+    nz = normals[i, 2]
+    return points[i, 0], points[i, 1], points[i, 2], nx, ny, nz, nx * nx + ny * ny + nz * nz > 0.0
+
+
 @njit(cache=True, fastmath=FASTMATH, error_model="numpy", parallel=True)
 def brute_force_pass(disks, cells, emitter_index, receivers, receiver_index, options, out, first,
                      fill):
@@ -363,13 +373,7 @@ def brute_force_pass(disks, cells, emitter_index, receivers, receiver_index, opt
         i = receiver_index[q]
         quad = np.empty((4, 3))
         dirs = np.zeros((2, 2 * SECTORS + 1))
-        px = points[i, 0]
-        py = points[i, 1]
-        pz = points[i, 2]
-        nx = r_normals[i, 0]
-        ny = r_normals[i, 1]
-        nz = r_normals[i, 2]
-        has_normal = nx * nx + ny * ny + nz * nz > 0.0
+        px, py, pz, nx, ny, nz, has_normal = receiver_at(points, r_normals, i)
         binning = directional and has_normal and measure == MEASURE_COSINE
         frame = tangent_frame(nx, ny, nz) if has_normal else (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
         min_d2 = inner[i] * inner[i]

@@ -21,6 +21,7 @@ from .bunnell import (
     direction_excess,
     is_near,
     level_of,
+    receiver_at,
     settle_fill,
 )
 from .listsums import binned_sums, direction_sums, far_sums, near_disk_sums, site
@@ -137,13 +138,7 @@ def hierarchy_pass(tree, emitters, receivers, near_field, buckets, span, options
                 i = order[q]
                 if modes[i] == 0:
                     continue
-                px = points[i, 0]
-                py = points[i, 1]
-                pz = points[i, 2]
-                nx = normals[i, 0]
-                ny = normals[i, 1]
-                nz = normals[i, 2]
-                has_normal = nx * nx + ny * ny + nz * nz > 0.0
+                px, py, pz, nx, ny, nz, has_normal = receiver_at(points, normals, i)
                 binned_i = binned and modes[i] == 2
                 min_d2 = inner[i] * inner[i]
                 px32 = np.float32(px)
