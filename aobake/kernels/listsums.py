@@ -47,16 +47,15 @@ class Site(NamedTuple):
     min_d2: np.float32
     #: the weights differ between levels
     leveled: bool
-    #: (N_BINS,) float32 weight-level thresholds (inf without levels)
-    wr2: np.ndarray
-    #: the same as scalars, read before the loops (a read inside stops vectorisation)
+    #: the N_BINS float32 weight-level thresholds (inf without levels), as scalars: no
+    #: array in the loops (a read inside stops vectorisation, a reference costs counting)
     thresholds: tuple
 
 
 @njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
 def site(px, py, pz, nx, ny, nz, has_normal, measure, gate, max_d2, min_d2, leveled, wr2):
-    """:class:`Site` of a receiver."""
-    return Site(px, py, pz, nx, ny, nz, has_normal, measure, gate, max_d2, min_d2, leveled, wr2,
+    """:class:`Site` of a receiver (``wr2``: the (N_BINS,) float32 level thresholds)."""
+    return Site(px, py, pz, nx, ny, nz, has_normal, measure, gate, max_d2, min_d2, leveled,
                 (wr2[0], wr2[1], wr2[2], wr2[3], wr2[4], wr2[5]))
 
 

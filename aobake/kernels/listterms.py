@@ -149,17 +149,17 @@ def gated_weight(near, j, r2, wa, px, py, pz, nx, ny, nz, has_normal, gate):
 
 
 @njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
-def near_weight(near, j, r2, wr2, px, py, pz, nx, ny, nz, has_normal, gate):
-    """Area x weight of near-list emitter j at distance^2 ``r2`` (leveled passes), gated
-    when ``gate > 0``; not for vectorised loops (reads the thresholds array)."""
-    wa = level_weight(near, j, r2, wr2[0], wr2[1], wr2[2], wr2[3], wr2[4], wr2[5])
+def near_weight(near, j, r2, t, px, py, pz, nx, ny, nz, has_normal, gate):
+    """Area x weight of near-list emitter j at distance^2 ``r2`` (leveled passes; ``t``:
+    the N_BINS float32 level thresholds), gated when ``gate > 0``; branches."""
+    wa = level_weight(near, j, r2, t[0], t[1], t[2], t[3], t[4], t[5])
     if gate > ZERO32:
         wa = gated_weight(near, j, r2, wa, px, py, pz, nx, ny, nz, has_normal, gate)
     return wa
 
 
 @njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
-def near_pair(near, j, dx, dy, dz, r2, wr2, px, py, pz, nx, ny, nz, has_normal, measure, gate,
+def near_pair(near, j, dx, dy, dz, r2, t, px, py, pz, nx, ny, nz, has_normal, measure, gate,
               max_d2, min_d2):
     """(front, back) of near-list disk j at the receiver (any measure, with or without a
     normal; weight from :func:`near_weight`); 0 when coincident, beyond the maximum
@@ -168,7 +168,7 @@ def near_pair(near, j, dx, dy, dz, r2, wr2, px, py, pz, nx, ny, nz, has_normal, 
     a = near[S_A, j]
     if r2 <= np.float32(COINCIDENT_REL) * a or r2 > max_d2 or r2 < min_d2:
         return ZERO32, ZERO32
-    wa = near_weight(near, j, r2, wr2, px, py, pz, nx, ny, nz, has_normal, gate)
+    wa = near_weight(near, j, r2, t, px, py, pz, nx, ny, nz, has_normal, gate)
     return disk_pair32(
         dx, dy, dz, r2, near[S_MX, j], near[S_MY, j], near[S_MZ, j], wa, a, nx, ny, nz,
         has_normal, measure,
@@ -210,7 +210,7 @@ def gated_far_term(far, j, dx, dy, dz, r2, at):
 @njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
 def disk_term(near, j, dx, dy, dz, r2, at):
     """:func:`near_pair` of near-list disk j (any measure and weights; branches)."""
-    return near_pair(near, j, dx, dy, dz, r2, at.wr2, at.px, at.py, at.pz, at.nx, at.ny, at.nz,
+    return near_pair(near, j, dx, dy, dz, r2, at.thresholds, at.px, at.py, at.pz, at.nx, at.ny, at.nz,
                      at.has_normal, at.measure, at.gate, at.max_d2, at.min_d2)
 
 
