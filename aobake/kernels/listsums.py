@@ -27,7 +27,9 @@ from .listterms import (
     leveled_cosine_term,
     select_cosine_term,
 )
-from .treewalk import F_WA, S_A, S_X, S_Y, S_Z
+from .treewalk import F_WA, F_X, F_Y, F_Z, S_A, S_X, S_Y, S_Z
+
+assert (S_X, S_Y, S_Z) == (F_X, F_Y, F_Z), "sum_list reads both lists' centres from the same rows"
 
 
 class Site(NamedTuple):
