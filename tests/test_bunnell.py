@@ -1,4 +1,4 @@
-"""Disk method (aobake.bunnell, aobake.kernels.bunnell): closed forms, the exact O(n^2) sum
+"""Disk method (aobake.methods.bunnell, aobake.kernels.bunnell): closed forms, the exact O(n^2) sum
 against a numpy reference, the hierarchy against the exact sum, passes, and bad meshes."""
 
 from __future__ import annotations
@@ -16,6 +16,7 @@ from aobake.kernels import bunnell as K
 from aobake.kernels import hierarchy as KH
 from aobake.kernels import polygon as KP
 from aobake.kernels import treepass as KT
+from aobake.kernels import treewalk as KTW
 from aobake.kernels import warps as KW
 from aobake.mesh import Surface, surface_from_arrays
 from aobake.methods import bunnell as B
@@ -926,7 +927,7 @@ def test_receiver_buckets_cover_every_vertex_once():
     normal_less=st.booleans(),
 )
 def test_bucket_culls_only_emitters_behind_every_receiver(seed, spread, normal_less):
-    """The bucket-level cull (treepass.behind) against each receiver's own float32 n.d:
+    """The bucket-level cull (treewalk.behind) against each receiver's own float32 n.d:
     whatever it drops has n.d <= 0 at every receiver of the bucket, so its term is an
     exact 0 (flat buckets with equal normals, curved ones, wide normal cones, a receiver
     without a normal, which stops every cull)."""
@@ -940,8 +941,8 @@ def test_bucket_culls_only_emitters_behind_every_receiver(seed, spread, normal_l
         points -= np.outer((points - points[0]) @ normals[0], normals[0])
     if normal_less:
         normals[rng.integers(k)] = 0.0
-    bounds = np.zeros((1, KT.BOUND_COLS))
-    KT.bucket_bounds(points, normals, np.zeros(k), np.arange(k), np.array([0, k]), bounds)
+    bounds = np.zeros((1, KTW.BOUND_COLS))
+    KTW.bucket_bounds(points, normals, np.zeros(k), np.arange(k), np.array([0, k]), bounds)
     centre = bounds[0, :3]
     # emitters at every scale around the bucket, some in its receivers' planes
     emitters = centre + rng.normal(size=(400, 3)) * rng.choice([1e-3, 1e-2, 0.3], size=(400, 1))
@@ -950,7 +951,7 @@ def test_bucket_culls_only_emitters_behind_every_receiver(seed, spread, normal_l
     )
     emitters = emitters.astype(np.float32)
     offsets = emitters.astype(np.float64) - centre
-    culled = np.array([KT.behind(bounds[0], *e, np.linalg.norm(e)) for e in offsets])
+    culled = np.array([KTW.behind(bounds[0], *e, np.linalg.norm(e)) for e in offsets])
     if normal_less:
         assert not culled.any()
         return
@@ -970,8 +971,9 @@ def test_bucket_cull_drops_the_far_side_of_a_ball():
     job = P._Pass(e, t, np.inf, 0.0, K.MEASURE_COSINE, np.inf)
     job.sums(np.ones((e.n_vertices, K.N_LEVELS)), NullProgress())
     _, _, bounds, near_buf, near_idx, far_buf = job.buckets
-    n_near, _, n_far = KT.gather(
-        job.tree_args, job.emitters, bounds[0], (np.inf, 0.0, job.options[5], False, 0.0),
+    n_near, _, n_far = KTW.gather(
+        job.tree_args, job.emitters, bounds[0],
+        job.options._replace(max_distance=np.inf, near=0.0, leveled=False, gate=0.0),
         near_buf[0], near_idx[0], far_buf[0],
     )
     assert n_far == 0  # theta inf: every leaf opened
@@ -1177,7 +1179,7 @@ def test_each_kernel_compiled_once():
     for kernel in (
         K.brute_force_pass,
         KT.hierarchy_pass,
-        KT.bucket_bounds,
+        KTW.bucket_bounds,
         KH.build_tree,
         KH.node_geometry,
         KH.refit_nodes,

@@ -2,8 +2,8 @@
 for the tree pass in ``aobake.kernels.treepass``).
 
 Imports numpy, numba and ``aobake.constants`` only (never trimesh or another aobake module
-outside ``kernels``). Every kernel takes plain arrays, scalars and tuples of arrays (no
-NamedTuple, whose cached type can go stale after a rename).
+outside ``kernels``). The pass kernels take the named tuples of
+``aobake.kernels.structures``.
 
 Symbols used in every docstring below (same names as the code):
 
@@ -50,6 +50,7 @@ __all__ = [
     "is_near",
     "is_wide",
     "level_of",
+    "receiver_at",
     "receiver_factor",
     "sector_coords",
     "tent",
@@ -72,9 +73,9 @@ N_LEVELS = N_BINS + 1
 
 # Per-direction saturation: azimuth sectors per band (aobake.constants.DIRECTION_SECTORS;
 # the pseudo-angle of sector_coords makes 8 equal sectors, the vectorised accumulators of
-# treepass are written out for 8).
+# listsums are written out for 8).
 SECTORS = DIRECTION_SECTORS
-assert SECTORS == 8, "sector_coords and treepass.dir_add are written for 8 sectors"
+assert SECTORS == 8, "sector_coords and listsums.dir_add are written for 8 sectors"
 
 PI32 = np.float32(np.pi)
 ZERO32 = np.float32(0.0)
@@ -225,7 +226,7 @@ def add_directions(dirs, f, b, area, dx, dy, dz, d2, frame, nx, ny, nz):
     sector k of the upper band, bin SECTORS + k the same sector near the horizon
     (:func:`sector_coords`: the ``pole`` share evenly, the rest by :func:`tent`); a wide
     emitter (:func:`is_wide`) goes whole to the last column, which is never capped.
-    Scalar; ``treepass`` has the vectorised form."""
+    Scalar; ``listsums`` has the vectorised form."""
     if f == 0.0 and b == 0.0 or not d2 > 0.0:  # nothing to add (a coincident disk)
         return
     if is_wide(area, d2):
@@ -296,6 +297,15 @@ def settle_fill(dirs, store, row, mode):
     return refill(dirs, store, row, 0), refill(dirs, store, row, 1)
 
 
+@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+def receiver_at(points, normals, i):
+    """``(px, py, pz, nx, ny, nz, has_normal)`` of receiver i (a zero normal row: none)."""
+    nx = normals[i, 0]
+    ny = normals[i, 1]
+    nz = normals[i, 2]
+    return points[i, 0], points[i, 1], points[i, 2], nx, ny, nz, nx * nx + ny * ny + nz * nz > 0.0
+
+
 @njit(cache=True, fastmath=FASTMATH, error_model="numpy", parallel=True)
 def brute_force_pass(disks, cells, emitter_index, receivers, receiver_index, options, out, first,
                      fill):
@@ -311,25 +321,21 @@ def brute_force_pass(disks, cells, emitter_index, receivers, receiver_index, opt
 
     Parameters
     ----------
-    disks : tuple
-        ``(positions (n, 3), normals (n, 3), areas (n,), weights (n, N_LEVELS), occluders
-        (n, 3))`` float64, per vertex: disk centres (not offset), unit normals, areas,
+    disks : structures.Disks
+        float64, per vertex: disk centres (not offset), unit normals, areas,
         weight per level, and the centroid of what occludes the disk (used when gated).
-    cells : tuple
-        ``(corner_start (n + 1,), corners (c, 2), weights (n,))``: the cell corners
-        (``polygon.cell_terms``) and the cells' pass weights (float64).
+    cells : structures.Cells
+        The cell corners (``polygon.cell_terms``) and the cells' pass weights.
     emitter_index : (k,) int64
         Vertices whose disks cast.
-    receivers : tuple
-        ``(points (n, 3), normals (n, 3), inner (n,), modes (n,) uint8)``: evaluation
-        points, normals, and an inner radius: emitters (disks and cells) whose centre is
+    receivers : structures.Receivers
+        Evaluation points, normals, and an inner radius: emitters (disks and cells) whose centre is
         closer than it are left out (0: none; the hybrid method's rays cover that ball);
         ``modes`` is for the tree pass (here ``receiver_index`` chooses).
     receiver_index : (q,) int64
         Receivers to compute (a chunk); each writes only ``out[i]``.
-    options : tuple
-        ``(measure, max_distance, near, binned, bin_r2, weight_r2, leveled, gate,
-        directional)``: measure code, centre-distance limit (``inf`` = unbounded), near-field
+    options : structures.PassOptions
+        Measure code, centre-distance limit (``inf`` = unbounded), near-field
         factor (0 = disks only), whether to split the sums by distance, the bins' squared
         outer radii (N_BINS,), the weight levels' squared distance thresholds (N_BINS,),
         whether the weights differ between levels (only then are they gated), the gate
@@ -345,18 +351,21 @@ def brute_force_pass(disks, cells, emitter_index, receivers, receiver_index, opt
         When ``binned``: ``sum (front + back term) (c - p)`` over every emitter, and
         ``sum (front + back term)`` (no excess removed), whose ratio locates the centroid
         of what occludes the receiver (the next pass's occluders); untouched otherwise.
-    fill : tuple
-        ``(store (m, 2, 2 SECTORS) float64, slot (n,) int64, mode)``: with per-direction
+    fill : structures.Fill
+        With per-direction
         saturation, receiver i with ``slot[i] >= 0`` keeps its direction bins in
         ``store[slot[i]]`` (mode FILL_KEEP: pass 1) or gets :func:`refill` back on each
         side's total (FILL_GIVE: a later pass); :func:`settle_fill`. Slots of -1 (and
         FILL_NONE, when every slot is -1): neither.
     """
-    positions, normals, areas, weights, occluders = disks
-    corner_start, corners, cell_weights = cells
-    store, slot, fill_mode = fill
-    points, r_normals, inner, _ = receivers
-    measure, max_distance, near, binned, bin_r2, weight_r2, leveled, gate, directional = options
+    positions, normals, areas = disks.positions, disks.normals, disks.areas
+    weights, occluders = disks.weights, disks.occluders
+    corner_start, corners, cell_weights = cells.corner_start, cells.corners, cells.weights
+    store, slot, fill_mode = fill.store, fill.slot, fill.mode
+    points, r_normals, inner = receivers.points, receivers.normals, receivers.inner
+    measure, max_distance, near, binned = options.measure, options.max_distance, options.near, options.binned
+    bin_r2, weight_r2, leveled, gate = options.bin_r2, options.weight_r2, options.leveled, options.gate
+    directional = options.directional
     gate = gate if leveled else 0.0  # gated weights are a later pass's (as in the tree)
     max_d2 = max_distance * max_distance
     last = bin_r2.shape[0] - 1
@@ -364,13 +373,7 @@ def brute_force_pass(disks, cells, emitter_index, receivers, receiver_index, opt
         i = receiver_index[q]
         quad = np.empty((4, 3))
         dirs = np.zeros((2, 2 * SECTORS + 1))
-        px = points[i, 0]
-        py = points[i, 1]
-        pz = points[i, 2]
-        nx = r_normals[i, 0]
-        ny = r_normals[i, 1]
-        nz = r_normals[i, 2]
-        has_normal = nx * nx + ny * ny + nz * nz > 0.0
+        px, py, pz, nx, ny, nz, has_normal = receiver_at(points, r_normals, i)
         binning = directional and has_normal and measure == MEASURE_COSINE
         frame = tangent_frame(nx, ny, nz) if has_normal else (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
         min_d2 = inner[i] * inner[i]

@@ -34,6 +34,12 @@ def _unit(x, y, z):
 
 
 @njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+def _minus(a, row, x, y, z):
+    """``a[row] - (x, y, z)`` as three scalars."""
+    return a[row, 0] - x, a[row, 1] - y, a[row, 2] - z
+
+
+@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
 def _edge_term(ax, ay, az, bx, by, bz, nx, ny, nz):
     """Lambert's term of one edge between unit directions a and b: ``gamma n.(a x b) / |a x b|``
     with ``gamma`` the angle between them (0 for a zero-length edge)."""
@@ -85,12 +91,8 @@ def clipped_quad(px, py, pz, nx, ny, nz, q, measure):
     ax = ay = az = 0.0  # previous clipped corner
     for k in range(4):
         k1 = (k + 1) % 4
-        x0 = q[k, 0] - px
-        y0 = q[k, 1] - py
-        z0 = q[k, 2] - pz
-        x1 = q[k1, 0] - px
-        y1 = q[k1, 1] - py
-        z1 = q[k1, 2] - pz
+        x0, y0, z0 = _minus(q, k, px, py, pz)
+        x1, y1, z1 = _minus(q, k1, px, py, pz)
         h0 = nx * x0 + ny * y0 + nz * z0
         h1 = nx * x1 + ny * y1 + nz * z1
         # Sutherland-Hodgman, streamed: emit the corner if kept, then the crossing
@@ -168,12 +170,8 @@ def cell_terms(positions, corner_start, corners, j, px, py, pz, nx, ny, nz, meas
         hc = nx * (positions[c, 0] - px) + ny * (positions[c, 1] - py) + nz * (positions[c, 2] - pz)
         if hj < 0.0 and hb < 0.0 and hc < 0.0:
             continue
-        e1x = positions[b, 0] - jx
-        e1y = positions[b, 1] - jy
-        e1z = positions[b, 2] - jz
-        e2x = positions[c, 0] - jx
-        e2y = positions[c, 1] - jy
-        e2z = positions[c, 2] - jz
+        e1x, e1y, e1z = _minus(positions, b, jx, jy, jz)
+        e2x, e2y, e2z = _minus(positions, c, jx, jy, jz)
         mx = e1y * e2z - e1z * e2y
         my = e1z * e2x - e1x * e2z
         mz = e1x * e2y - e1y * e2x

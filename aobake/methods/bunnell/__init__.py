@@ -10,7 +10,7 @@ from __future__ import annotations
 from ...lazy import exports
 from .options import BunnellOptions
 
-__all__ = ["BunnellOptions", "bunnell_ao", "run"]
+__all__ = ["BunnellOptions", "bunnell_ao", "run"]  # the rest: for tests, the bench, animation
 
 # public and test-facing names -> the module that defines them
 _LAZY = {

@@ -26,7 +26,9 @@ from ...constants import MEASURE_CODES, PASS_GATE_WIDTH, PASS_RADII
 from ...kernels import bunnell as _k
 from ...kernels import hierarchy as _h
 from ...kernels import polygon as _poly
+from ...kernels import structures as _s
 from ...kernels import treepass as _tp
+from ...kernels import treewalk as _tw
 from ...options import option, validate
 from ...progress import NullProgress, Progress
 from .elements import DiskElements
@@ -160,13 +162,16 @@ class _Pass:
         bin_r2 = np.asarray(PASS_RADII, dtype=np.float64) ** 2
         with np.errstate(divide="ignore"):
             weight_r2 = np.ascontiguousarray(bin_r2 / pass_reach**2)
-        self.options = (code, reach, near, False, bin_r2, weight_r2, False, float(gate), bool(directional))
+        self.options = _s.PassOptions(
+            measure=code, max_distance=reach, near=near, binned=False, bin_r2=bin_r2,
+            weight_r2=weight_r2, leveled=False, gate=float(gate), directional=bool(directional),
+        )
         inner = np.zeros(elements.n_vertices) if inner is None else inner
-        self.receivers = (
-            elements.points,
-            elements.normals,
-            np.ascontiguousarray(inner, dtype=np.float64),
-            np.full(elements.n_vertices, 2, dtype=np.uint8),
+        self.receivers = _s.Receivers(
+            points=elements.points,
+            normals=elements.normals,
+            inner=np.ascontiguousarray(inner, dtype=np.float64),
+            modes=np.full(elements.n_vertices, 2, dtype=np.uint8),
         )
         self.no_fill = _no_fill(elements.n_vertices)
         if tree is None:
@@ -182,22 +187,26 @@ class _Pass:
         coherence = node_coherence(tree, elements.normals, elements.areas)
         self.nodes = pack_nodes(tree, theta=theta, near=near, coherence=coherence)
         self.moments = np.zeros((tree.n_nodes, _k.N_LEVELS, _h.MOMENT_COLS), dtype=np.float32)
-        self.tree_args = (tree.skip, tree.start, tree.stop, self.nodes, self.moments)
-        self.emitters = (self.rows, order, self.weights, self.occluders)
+        self.tree_args = _s.TreeArrays(
+            skip=tree.skip, start=tree.start, stop=tree.stop, nodes=self.nodes, moments=self.moments
+        )
+        self.emitters = _s.Emitters(
+            rows=self.rows, index=order, weights=self.weights, occluders=self.occluders
+        )
         recv_order, bucket_start = receiver_buckets(elements, tree)
-        bounds = np.zeros((bucket_start.shape[0] - 1, _tp.BOUND_COLS))
-        _tp.bucket_bounds(elements.points, elements.normals, self.receivers[2], recv_order,
+        bounds = np.zeros((bucket_start.shape[0] - 1, _tw.BOUND_COLS))
+        _tw.bucket_bounds(elements.points, elements.normals, self.receivers.inner, recv_order,
                           bucket_start, bounds)
         slots = numba.config.NUMBA_NUM_THREADS
         k, m = order.shape[0], tree.n_nodes
         self.bucket_start = bucket_start
-        self.buckets = (
-            recv_order,
-            bucket_start,
-            bounds,
-            np.empty((slots, _tp.NEAR_ROWS, k), dtype=np.float32),
-            np.empty((slots, 2, k), dtype=np.int64),
-            np.empty((slots, _tp.FAR_ROWS, m), dtype=np.float32),
+        self.buckets = _s.Buckets(
+            order=recv_order,
+            start=bucket_start,
+            bounds=bounds,
+            near_buf=np.empty((slots, _tw.NEAR_ROWS, k), dtype=np.float32),
+            near_idx=np.empty((slots, 2, k), dtype=np.int64),
+            far_buf=np.empty((slots, _tw.FAR_ROWS, m), dtype=np.float32),
         )
 
     def sums(
@@ -222,7 +231,7 @@ class _Pass:
         cell weights must not have changed), 0 neither. ``occluders``: (n, 3) occluder
         centroids for gated weights (default: the vertices; unused unless leveled).
         ``modes`` (tree only): (n,) uint8 per receiver, 0 skip (row 0), 1 total only, 2
-        binned when ``binned`` (default: all 2). ``fill``: ``(store, slot, mode)``, what
+        binned when ``binned`` (default: all 2). ``fill``: a ``kernels.structures.Fill``, what
         receivers do with their direction bins for later passes
         (``kernels.bunnell.brute_force_pass``; default: nothing).
         """
@@ -234,14 +243,14 @@ class _Pass:
         weights = np.ascontiguousarray(weights)
         cell_weights = np.ascontiguousarray(weights[:, 0] if cell_weights is None else cell_weights)
         leveled = bool(np.any(weights != weights[:, :1]))
-        options = self.options[:3] + (bool(binned),) + self.options[4:6] + (leveled,) + self.options[7:]
+        options = self.options._replace(binned=bool(binned), leveled=leveled)
         occluders = np.ascontiguousarray(e.positions if occluders is None else occluders)
         out = np.zeros((n, 2, _k.N_BINS))
         first = np.zeros((n, 4))
         fill = self.no_fill if fill is None else fill
         if self.tree is None:
-            disks = (e.positions, e.normals, e.areas, weights, occluders)
-            cells = (e.corner_start, e.corners, cell_weights)
+            disks = _s.Disks(e.positions, e.normals, e.areas, weights, occluders)
+            cells = _s.Cells(e.corner_start, e.corners, cell_weights)
             everyone = np.arange(n, dtype=np.int64)
             step = CHUNK_BUCKETS * DEFAULT_LEAF_SIZE
             for lo in range(0, n, step):
@@ -256,7 +265,7 @@ class _Pass:
             self.weights[:] = weights[self.tree.order]
         else:
             self.weights[:, 0] = weights[self.tree.order, 0]
-        if leveled and self.options[7] > 0.0:
+        if leveled and self.options.gate > 0.0:
             self.occluders[:] = occluders[self.tree.order]
         _h.refit_nodes(
             self.rows,
@@ -274,11 +283,15 @@ class _Pass:
         cache = getattr(self, "cache", np.zeros((0, 2, _k.N_BINS)))
         receivers = self.receivers
         if modes is not None:
-            receivers = receivers[:3] + (np.ascontiguousarray(modes, dtype=np.uint8),)
+            receivers = receivers._replace(modes=np.ascontiguousarray(modes, dtype=np.uint8))
         # the near field in tree order (_cells_in_tree_order)
-        near_field = self.cells[:1] + (cell_weights[self.perm],) + self.cells[1:] + (cache, int(cache_mode))
+        positions, corner_start, corners, reach = self.cells
+        near_field = _s.NearField(
+            positions=positions, weights=cell_weights[self.perm], corner_start=corner_start,
+            corners=corners, reach=reach, cache=cache, cache_mode=int(cache_mode),
+        )
         buckets = self.buckets
-        bucket_start = buckets[1]
+        bucket_start = buckets.start
         n_buckets = bucket_start.shape[0] - 1
         import numba
 
@@ -291,7 +304,7 @@ class _Pass:
                 receivers,
                 near_field,
                 buckets,
-                (b0, b1, threads),
+                _s.Span(b0, b1, threads),
                 options,
                 out,
                 first,
@@ -301,18 +314,18 @@ class _Pass:
         return out, first
 
 
-def _no_fill(n: int) -> tuple:
+def _no_fill(n: int) -> _s.Fill:
     """The kernels' ``fill`` argument when no receiver keeps or reads its bins."""
-    return (np.zeros((0, 2, 2 * _k.SECTORS)), np.full(n, -1, dtype=np.int64), _k.FILL_NONE)
+    return _s.Fill(np.zeros((0, 2, 2 * _k.SECTORS)), np.full(n, -1, dtype=np.int64), _k.FILL_NONE)
 
 
-def _fills(n: int, keepers: IndexArray) -> tuple[tuple, tuple]:
+def _fills(n: int, keepers: IndexArray) -> tuple[_s.Fill, _s.Fill]:
     """``fill`` arguments for pass 1 (``keepers`` keep their direction bins) and for the
     later passes (they read them back: ``kernels.bunnell.refill``)."""
     store = np.zeros((keepers.shape[0], 2, 2 * _k.SECTORS))
     slot = np.full(n, -1, dtype=np.int64)
     slot[keepers] = np.arange(keepers.shape[0])
-    return (store, slot, _k.FILL_KEEP), (store, slot, _k.FILL_GIVE)
+    return _s.Fill(store, slot, _k.FILL_KEEP), _s.Fill(store, slot, _k.FILL_GIVE)
 
 
 def _non_emitters(n: int, order: IndexArray) -> IndexArray:
