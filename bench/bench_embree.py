@@ -36,11 +36,17 @@ import numpy as np
 from aobake.constants import CHUNK_RAYS, INFINITE_DISTANCE, MEASURE_CODES
 from aobake.contacts import contact_origins, ray_offsets, shell_labels
 from aobake.kernels import rays as _k
-from aobake.methods.embree import embree_ao
+from aobake.methods.embree import EmbreeOptions, embree_ao, estimate
 from aobake.sampling import sample_directions
 from aobake.tracing import Tracer
 
 import common as C
+
+
+def knobs_ao(surface, *, chunk_rays: int, contact_fix: bool = True, **options):
+    """``embree_ao`` with the estimator's bench knobs (chunk size; plain offset origins)."""
+    return estimate(surface, EmbreeOptions(**options), None, chunk_rays=chunk_rays,
+                    contact_fix=contact_fix)
 
 RUN_SEED = 0
 #: The reference uses another scrambling key: with the same key, the N-ray estimates
@@ -127,12 +133,12 @@ def end_to_end(bs: C.BenchScene, prep: Prepared, n_rays: int, args, gil_check: b
     surface = bs.surface
     chunks = trace_only_chunks(surface, prep, n_rays, "cosine", args.chunk_rays)
     fns = {
-        "ours": lambda: embree_ao(
+        "ours": lambda: knobs_ao(
             surface, n_rays=n_rays, measure="cosine", seed=RUN_SEED, threads=args.threads,
             chunk_rays=args.chunk_rays,
         ),
         "trace": trace_runner(prep.scene, chunks, args.threads),
-        "nofix": lambda: embree_ao(
+        "nofix": lambda: knobs_ao(
             surface, n_rays=n_rays, measure="cosine", seed=RUN_SEED, threads=args.threads,
             chunk_rays=args.chunk_rays, contact_fix=False,
         ),
@@ -205,7 +211,7 @@ def error_sweep(bs: C.BenchScene, prep: Prepared, ns, tolerances, ref_rays, repe
     threads = args.threads
 
     def ours(n, tolerance=None, seed=RUN_SEED):
-        return embree_ao(
+        return knobs_ao(
             surface, n_rays=n, measure="uniform", seed=seed, threads=threads, tolerance=tolerance,
             chunk_rays=args.chunk_rays,
         )
@@ -369,7 +375,7 @@ def report(facts, e2e: list[E2E], stages, sweeps: list[Sweep], args, igl, small_
         "ratio = trace-only time / end-to-end time. Trace-only times only `Tracer.occluded` on "
         "the same rays prepared in advance (no BVH build, no contact probes, no ray "
         "generation); `same AO` checks bit-identical hit counts. `w/o contact fix`: "
-        "`embree_ao(contact_fix=False)` (plain offset origins, as peers do), timed in the same "
+        "`methods.embree.estimate(..., contact_fix=False)` (plain offset origins, as peers do), timed in the same "
         "rounds: the cost of `contact_origins`. cores = process CPU time / wall time.",
     )
     gil = [r for r in e2e if r.trace1 is not None]

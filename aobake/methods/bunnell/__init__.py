@@ -1,8 +1,9 @@
 """Bunnell's disk method: oriented disks per vertex, a cluster tree, occlusion passes; no rays.
 
-``elements`` (the disks), ``tree`` (the cluster tree), ``passes`` (the sums and the pass
-scheme), ``estimator`` (the entry points). Importing this package loads only its
-options; numpy and the kernels load on first use.
+``elements`` (the disks), ``tree`` (the cluster tree), ``passes`` (the sums per pass),
+``scheme`` (the pass scheme's switches and how passes combine), ``estimator`` (the entry
+points). Importing this package loads only its options; numpy and the kernels load on
+first use.
 """
 
 from __future__ import annotations
@@ -22,12 +23,12 @@ _LAZY = {
     "build_elements": "elements",
     "ClusterTree": "tree",
     "refit_tree": "tree",
-    "Scheme": "passes",
+    "Scheme": "scheme",
     "build_tree": "passes",
-    "combine_passes": "passes",
-    "combine_sides": "passes",
+    "combine_passes": "scheme",
+    "combine_sides": "scheme",
     "occlusion_passes": "passes",
-    "settings": "passes",
+    "settings": "scheme",
 }
 
 

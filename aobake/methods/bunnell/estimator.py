@@ -13,7 +13,8 @@ from ...progress import Progress
 from .. import MethodResult
 from .elements import build_elements
 from .options import BunnellOptions
-from .passes import Scheme, build_tree, combine_passes, occlusion_passes, settings
+from .passes import build_tree, occlusion_passes
+from .scheme import Scheme, combine_passes, settings
 from .tree import ClusterTree, refit_tree
 
 
