@@ -179,6 +179,26 @@ def _fit_denominator(s, om, ok, slo, npar, beta, work, model):
     beta[0] = max(q[0] / h[0, 0], target)
 
 
+@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+def _trial_step(h, g, mu, eps, kkt, rhs, x, trial):
+    """A damped step from ``x`` into ``trial`` (:func:`_damped_step`); False when singular."""
+    if not _damped_step(h, g, mu, eps, kkt, rhs):
+        return False
+    for a in range(3):
+        trial[a] = x[a] + rhs[a]
+    return True
+
+
+@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+def _improves(new, cost, trial, x):
+    """Levenberg-Marquardt's acceptance: ``trial`` replaces ``x`` when it lowers the cost."""
+    if new < cost:
+        for a in range(3):
+            x[a] = trial[a]
+        return True
+    return False
+
+
 @njit(cache=True, fastmath=FASTMATH, error_model="numpy")
 def _refine_omega(s, om, ok, q, slo, beta, iters, work, model):
     """Levenberg-Marquardt on sum q_i (Omega_i - Omega~(s_i))^2 (the paper's error in
@@ -209,12 +229,9 @@ def _refine_omega(s, om, ok, q, slo, beta, iters, work, model):
                     h[a, b] += q[i] * phi[a] * phi[b]
         accepted = False
         for _try in range(6):
-            rhs = work[3, :, 0]
-            if not _damped_step(h, g, mu, 1e-15, work[2], rhs):
+            if not _trial_step(h, g, mu, 1e-15, work[2], work[3, :, 0], beta, trial):
                 mu *= 10.0
                 continue
-            for a in range(3):
-                trial[a] = beta[a] + rhs[a]
             _, dmin = _den_min(trial, slo, 1.0)
             new = np.inf
             if dmin >= den_floor(model):
@@ -222,10 +239,8 @@ def _refine_omega(s, om, ok, q, slo, beta, iters, work, model):
                 for i in range(m):
                     if ok[i]:
                         new += q[i] * (om[i] - model_omega(_den(trial, s[i]), model)) ** 2
-            if new < cost:
+            if _improves(new, cost, trial, beta):
                 cost = new
-                for a in range(3):
-                    beta[a] = trial[a]
                 mu *= 0.3
                 accepted = True
                 break
@@ -299,18 +314,13 @@ def _refine_centre(c, radii, unit, dx, dy, dz, wts, lam, limit, iters, work):
                     h[p, q] += w * ((1.0 if p == q else 0.0) - u[p] * u[q]) / (ln * ln)
         accepted = False
         for _try in range(6):
-            rhs = work[5, :, 0]
-            if not _damped_step(h, g, mu, 1e-300, work[4], rhs):
+            if not _trial_step(h, g, mu, 1e-300, work[4], work[5, :, 0], c, trial):
                 mu *= 10.0
                 continue
-            for p in range(3):
-                trial[p] = c[p] + rhs[p]
             _clamp_centre(trial, dx, dy, dz, limit)
             new = _centre_cost(trial, radii, unit, dx, dy, dz, wts, lam, tiny)
-            if new < cost:
+            if _improves(new, cost, trial, c):
                 cost = new
-                for p in range(3):
-                    c[p] = trial[p]
                 mu *= 0.3
                 accepted = True
                 break
