@@ -36,6 +36,7 @@ import numpy as np
 
 from aobake.constants import MEASURE_CODES
 from aobake.kernels import bunnell as K
+from aobake.kernels import structures as S_
 from aobake.methods import bunnell as B
 from aobake.methods.bunnell import BunnellOptions
 from aobake.methods.bunnell import passes as P
@@ -226,9 +227,9 @@ def exact_subset(elements, subset, near, directional=True):
                   directional=directional)
     out = np.zeros((elements.n_vertices, 2, K.N_BINS))
     ones = np.ones(elements.n_vertices)
-    disks = (elements.positions, elements.normals, elements.areas,
-             np.ones((elements.n_vertices, K.N_LEVELS)), elements.positions)
-    cells = (elements.corner_start, elements.corners, ones)
+    disks = S_.Disks(elements.positions, elements.normals, elements.areas,
+                     np.ones((elements.n_vertices, K.N_LEVELS)), elements.positions)
+    cells = S_.Cells(elements.corner_start, elements.corners, ones)
     first = np.zeros((elements.n_vertices, 4))
     K.brute_force_pass(disks, cells, elements.emitter_index, job.receivers, subset, job.options,
                        out, first, job.no_fill)
