@@ -14,7 +14,7 @@ from .. import MethodResult
 from .elements import build_elements
 from .options import BunnellOptions
 from .passes import build_tree, occlusion_passes
-from .scheme import Scheme, combine_passes, settings
+from .scheme import Scheme, check_blend, combine_passes, settings
 from .tree import ClusterTree, refit_tree
 
 
@@ -100,11 +100,7 @@ def estimate(
     pass schemes and variants, :class:`Scheme`) and ``exact=True`` (every disk summed,
     O(n^2), no tree: the hierarchy's reference)."""
     scheme = Scheme() if scheme is None else scheme
-    if scheme.combine != "last" and options.passes < 2:
-        raise ValueError(
-            f"combine={scheme.combine!r} blends the last two passes and needs passes >= 2, "
-            f"got {options.passes}"
-        )
+    check_blend(scheme.combine, options.passes)  # before any work
     elements = build_elements(surface)
     given, tree = tree, None
     if not exact and elements.n_emitters > 0:

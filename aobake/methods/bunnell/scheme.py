@@ -73,12 +73,15 @@ def settings(**keywords) -> tuple[BunnellOptions, Scheme]:
         raise TypeError(f"no option or scheme switch {unknown[0]!r}")
     options = BunnellOptions(**{k: v for k, v in keywords.items() if k in names[0]})
     scheme = Scheme(**{k: v for k, v in keywords.items() if k in names[1]})
-    if scheme.combine != "last" and options.passes < 2:
-        raise ValueError(
-            f"combine={scheme.combine!r} blends the last two passes and needs passes >= 2, "
-            f"got {options.passes}"
-        )
     return options, scheme
+
+
+def check_blend(combine: str, passes: int) -> None:
+    """The blends read the last two passes: ``ValueError`` for one with fewer than 2."""
+    if combine != "last" and passes < 2:
+        raise ValueError(
+            f"combine={combine!r} blends the last two passes and needs passes >= 2, got {passes}"
+        )
 
 
 def combine_sides(sums: FloatArray, sides: str = "max") -> FloatArray:
@@ -119,8 +122,7 @@ def combine_passes(occlusion: FloatArray, combine: str = "last") -> AOArray:
         raise ValueError(f"occlusion must have shape (K, n) with K >= 1, got {occlusion.shape}")
     if combine not in ("last", "bunnell", "hoberock"):
         raise ValueError(f"combine must be one of last, bunnell, hoberock, got {combine!r}")
-    if combine != "last" and occlusion.shape[0] < 2:
-        raise ValueError(f"combine={combine!r} blends the last two passes and needs passes >= 2")
+    check_blend(combine, occlusion.shape[0])
     last = 1.0 - occlusion[-1]
     if combine == "last":
         return last
