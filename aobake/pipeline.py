@@ -91,7 +91,13 @@ def as_surface(mesh: Any) -> Surface:
 def _compute(surface: Surface, method: str, options: dict, progress: Progress | None):
     from .methods import run
 
-    result = run(method, surface, options, progress)
+    try:
+        result = run(method, surface, options, progress)
+    except NumericalError as exc:  # a method's own message, named after the file
+        name = Path(surface.source).name
+        if str(exc).startswith(f"{name}:"):
+            raise
+        raise NumericalError(f"{name}: {exc}") from None
     return result.ao, result.n_rays, result.contacts
 
 
@@ -181,7 +187,7 @@ def bake_file(
     custom = {"method": method, "version": __version__, "source": Path(str(source)).name}
     custom.update({k: ("none" if v is None else v) for k, v in options.items() if k not in ("threads", "chunk_rays")})
     if placed:
-        custom["fields"] = [name for _, _, name in placed]
+        custom["fields"] = ", ".join(name for _, _, name in placed)  # USD customData takes no lists
     # Stage metrics: what the caller says, else what the input said (USD, glTF), else
     # the documented defaults. An unauthored metersPerUnit would mean centimetres.
     meta = surface.metadata

@@ -9,7 +9,9 @@ from __future__ import annotations
 import contextlib
 import os
 import re
+import signal
 import tempfile
+import threading
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -21,30 +23,51 @@ from ..errors import FormatError, InputError, NumericalError, OutputError
 BAKE_SUFFIXES = {".ply": "ply", ".usda": "usd", ".usdc": "usd", ".usd": "usd"}
 
 
+def output_name(path: str | Path) -> str:
+    """How a message names an output: its file name, or the whole path when it has none
+    (``.``, ``/``); a temporary file of :func:`atomic_write` is named by its output."""
+    path = Path(path)
+    path = _ACTIVE.get(path, path)
+    return path.name or str(path)
+
+
 def output_kind(path: str | Path) -> str:
     """Return ``"ply"`` or ``"usd"`` for an output path, or raise :class:`FormatError`.
 
     Called before any computation so a typo in ``-o`` fails fast.
     """
+    if not Path(path).name or Path(path).is_dir():
+        raise FormatError(f"{output_name(path)}: is a directory; give an output file such as out.ply")
     suffix = Path(path).suffix.lower()
     try:
         return BAKE_SUFFIXES[suffix]
     except KeyError:
         supported = ", ".join(sorted(BAKE_SUFFIXES))
         raise FormatError(
-            f"{Path(path).name}: unsupported output suffix {suffix or '(none)'!r}; use one of {supported}"
+            f"{output_name(path)}: unsupported output suffix {suffix or '(none)'!r}; use one of {supported}"
         ) from None
 
 
 def check_output_dir(path: str | Path) -> None:
     """Raise :class:`OutputError` if the directory of ``path`` is missing or unwritable."""
+    name = output_name(path)
+    if not Path(path).name or Path(path).is_dir():
+        raise OutputError(f"{name}: output path is a directory")
     parent = Path(path).resolve().parent
     if not parent.is_dir():
-        raise OutputError(f"{Path(path).name}: output directory {parent} does not exist")
+        raise OutputError(f"{name}: output directory {parent} does not exist")
     if not os.access(parent, os.W_OK):
-        raise OutputError(f"{Path(path).name}: output directory {parent} is not writable")
-    if Path(path).is_dir():
-        raise OutputError(f"{Path(path).name}: output path is a directory")
+        raise OutputError(f"{name}: output directory {parent} is not writable")
+
+
+def check_not_input(output: str | Path, inputs) -> None:
+    """Raise :class:`OutputError` when ``output`` is one of ``inputs`` (the same file,
+    through any path): a command never writes over what it reads."""
+    out = Path(output)
+    for item in inputs:
+        with contextlib.suppress(OSError):
+            if out.exists() and os.path.samefile(out, item):
+                raise OutputError(f"{output_name(out)}: is also an input; refusing to write over it")
 
 
 def check_ao(
@@ -89,30 +112,86 @@ def _umask() -> int:
     return mask
 
 
+#: Temporary files of the atomic writes under way -> their outputs (a writer called on a
+#: temporary file writes into it instead of nesting another one; messages name the output).
+_ACTIVE: dict[Path, Path] = {}
+
+#: Longest file name most file systems take (bytes).
+_NAME_MAX = 255
+
+#: Signals held back while a temporary file is created or removed, so a Ctrl-C or a
+#: SIGTERM cannot leave one behind between its creation and the cleanup handler.
+_HELD = {signal.SIGINT, signal.SIGTERM}
+
+
+def _temporary_prefix(path: Path) -> str:
+    """``.<stem>.`` cut so the temporary name (prefix, 8 random characters, suffix) stays
+    within 255 bytes (a long output name otherwise fails only for its temporary sibling)."""
+    budget = _NAME_MAX - len(os.fsencode(path.suffix)) - 8 - 2
+    stem = os.fsencode(path.stem)[: max(budget, 0)]
+    return "." + os.fsdecode(stem) + "."
+
+
+@contextlib.contextmanager
+def _signals_held() -> Iterator[None]:
+    main = threading.current_thread() is threading.main_thread()
+    if main:
+        old = signal.pthread_sigmask(signal.SIG_BLOCK, _HELD)
+    try:
+        yield
+    finally:
+        if main:
+            signal.pthread_sigmask(signal.SIG_SETMASK, old)
+
+
+def _cannot_write(path: Path, exc: OSError) -> OutputError:
+    return OutputError(f"{output_name(path)}: cannot write ({exc.strerror or short_reason(exc)})")
+
+
 @contextlib.contextmanager
 def atomic_write(path: str | Path) -> Iterator[Path]:
     """Yield a temporary path next to ``path``; rename it over ``path`` on success.
 
     The temporary name keeps the suffix (USD picks its format from it). On any exception,
-    including KeyboardInterrupt, the temporary file is removed and nothing is left behind.
+    including KeyboardInterrupt and SIGTERM (the CLI raises it as an interrupt), the
+    temporary file is removed and nothing is left behind. An :class:`OSError` (disk
+    full, read-only or vanished directory, name too long) becomes one
+    :class:`OutputError` naming ``path``. Called on a temporary file of an atomic write
+    under way, it yields that file (the outer write renames it).
     """
     path = Path(path)
+    if path in _ACTIVE:
+        yield path
+        return
     check_output_dir(path)
-    fd, tmp_name = tempfile.mkstemp(
-        prefix=f".{path.stem}.", suffix=path.suffix, dir=path.resolve().parent
-    )
-    os.close(fd)
-    tmp = Path(tmp_name)
+    try:
+        with _signals_held():
+            fd, tmp_name = tempfile.mkstemp(
+                prefix=_temporary_prefix(path), suffix=path.suffix, dir=path.resolve().parent
+            )
+            os.close(fd)
+            tmp = Path(tmp_name)
+            _ACTIVE[tmp] = path
+    except OSError as exc:
+        raise _cannot_write(path, exc) from None
     try:
         yield tmp
         # mkstemp creates 0600; give the output the mode a plain open() would have.
         os.chmod(tmp, 0o666 & ~_umask())
         os.replace(tmp, path)
+    except OSError as exc:
+        _discard(tmp)
+        raise _cannot_write(path, exc) from None
     except BaseException:
-        with contextlib.suppress(OSError):
-            tmp.unlink()
+        _discard(tmp)
         raise
+    finally:
+        _ACTIVE.pop(tmp, None)
 
+
+def _discard(tmp: Path) -> None:
+    with _signals_held(), contextlib.suppress(OSError):
+        tmp.unlink()
 
 
 #: Longest foreign error text kept in a one-line message.

@@ -27,7 +27,7 @@ import numpy as np
 from .._types import FloatArray
 from ..errors import InputError, OutputError
 from ..mesh import RawPart, fan_triangulate, reverse_polygons, transformed_part
-from .common import atomic_write, check_ao
+from .common import atomic_write, check_ao, output_name
 
 #: Largest index a USD ``int[]`` (int32) can hold.
 INT32_MAX = int(np.iinfo(np.int32).max)
@@ -100,7 +100,7 @@ def write_usd(
         Bad ``up_axis``, ``meters_per_unit`` or ``custom_data``.
     """
     path = Path(path)
-    ao32 = check_ao(ao, n_vertices=surface.n_vertices, where=path.name)
+    ao32 = check_ao(ao, n_vertices=surface.n_vertices, where=output_name(path))
     up = str(up_axis).upper()
     if up not in UP_AXES:
         raise ValueError(f"up_axis must be 'Y' or 'Z', got {up_axis!r}")
@@ -117,14 +117,14 @@ def write_usd(
             _author_stage(
                 tmp,
                 meshes,
-                out_name=path.name,
+                out_name=output_name(path),
                 color=color,
                 up_axis=up,
                 meters_per_unit=mpu,
                 custom_data=data,
             )
     except OSError as exc:
-        raise OutputError(f"{path.name}: cannot write ({exc.strerror or exc})") from exc
+        raise OutputError(f"{output_name(path)}: cannot write ({exc.strerror or exc})") from exc
 
 
 def read_ao_usd(path: str | Path) -> np.ndarray:
@@ -252,7 +252,7 @@ def _mesh_arrays(path: Path, surface, ao32: np.ndarray) -> list[dict]:
             )
         if k > INT32_MAX:
             raise OutputError(
-                f"{path.name}: part {part.name!r} has {k} vertices, "
+                f"{output_name(path)}: part {part.name!r} has {k} vertices, "
                 "more than USD int32 indices address"
             )
         counts = np.asarray(part.face_vertex_counts, dtype=np.int64).reshape(-1)
@@ -279,7 +279,7 @@ def _mesh_arrays(path: Path, surface, ao32: np.ndarray) -> list[dict]:
             points = np.ascontiguousarray(positions[vs:ve], dtype=np.float32)
         if not np.isfinite(points).all():
             raise OutputError(
-                f"{path.name}: part {part.name!r} has coordinates that overflow float32"
+                f"{output_name(path)}: part {part.name!r} has coordinates that overflow float32"
             )
         meshes.append(
             {
