@@ -19,7 +19,13 @@ AO_CONVENTION = "The attribute `ao` holds 1 - A, the ambient factor (1 = fully o
 
 
 class AobakeGroup(click.Group):
-    """Turns :class:`AobakeError` into ``Error: <file>: <problem>`` and exit code 1."""
+    """Turns :class:`AobakeError` into ``Error: <file>: <problem>`` and exit code 1.
+
+    Warnings (numpy, trimesh's log, USD's stderr) are held while the command runs:
+    shown as ``Warning: ...`` lines when it succeeds, dropped when it fails (the
+    ``Error:`` line is then the only output). SIGTERM ends it like Ctrl-C (temporary
+    files removed), with exit code 143.
+    """
 
     def invoke(self, ctx):
         import threading
@@ -28,16 +34,51 @@ class AobakeGroup(click.Group):
 
         if threading.current_thread() is threading.main_thread():
             progress.install_interrupt_handler()  # Ctrl-C during numba compilation is not lost
+        with _held_warnings() as held:
+            try:
+                result = super().invoke(ctx)
+            except AobakeError as exc:
+                raise click.ClickException(str(exc)) from None
+            except progress.Terminated:
+                ctx.exit(128 + 15)
+            except Exception:
+                # after a Ctrl-C that Python dropped (progress.install_interrupt_handler),
+                # numba may fail in its own way (a half-compiled library): that is the abort
+                if progress.interrupted():
+                    raise click.Abort() from None
+                raise
+        for line in dict.fromkeys(held):  # once each, in order
+            click.echo(f"Warning: {line}", err=True)
+        return result
+
+
+def _held_warnings():
+    """Context manager: collect Python warnings and WARNING log records (trimesh) into
+    a list of one-line messages instead of printing them."""
+    import contextlib
+    import logging
+    import warnings
+
+    class Held(logging.Handler):
+        def emit(self, record):
+            held.append(" ".join(record.getMessage().split()))
+
+    held: list[str] = []
+
+    @contextlib.contextmanager
+    def hold():
+        log = Held(logging.WARNING)
+        root = logging.getLogger()
+        root.addHandler(log)
         try:
-            return super().invoke(ctx)
-        except AobakeError as exc:
-            raise click.ClickException(str(exc)) from None
-        except Exception:
-            # after a Ctrl-C that Python dropped (progress.install_interrupt_handler),
-            # numba may fail in its own way (a half-compiled library): that is the abort
-            if progress.interrupted():
-                raise click.Abort() from None
-            raise
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("default")
+                yield held
+        finally:
+            root.removeHandler(log)
+            held[:0] = [" ".join(str(w.message).split()) for w in caught]
+
+    return hold()
 
 
 class FieldSpec(click.ParamType):
@@ -301,7 +342,7 @@ def field_command(occluder, output, quiet, **options):
 @click.argument("reference", type=click.Path(path_type=Path))
 @click.argument("candidate", type=click.Path(path_type=Path))
 @click.option(
-    "--threshold", type=click.FloatRange(min=0), default=0.05, show_default=True, help="Report the share above this |error|."
+    "--threshold", type=NumberRange(min=0), default=0.05, show_default=True, help="Report the share above this |error|."
 )
 @click.option("--worst", type=click.IntRange(min=0), default=10, show_default=True, help="List this many worst vertices.")
 @click.option("--json", "json_path", type=click.Path(path_type=Path), default=None, help="Also write the numbers as JSON.")
@@ -315,7 +356,7 @@ def field_command(occluder, output, quiet, **options):
 def compare(reference, candidate, threshold, worst, json_path, plot_path, render_path, up):
     """Error report of CANDIDATE against REFERENCE (bakes of one mesh: PLY, USD or .npy).
 
-    Prints RMSE, MAE, bias, max and p50/p95/p99 of |error| (error = candidate -
+    Prints RMSE, MAE, mean error, max and p50/p95/p99 of |error| (error = candidate -
     reference, on `ao` = 1 - A), the share of vertices above --threshold and the worst
     vertices.
     """
@@ -361,7 +402,12 @@ def sweep(mesh, out_dir, reference_rays, repeats, no_plot, no_fields, up, seed, 
     """
     from .pipeline import sweep_file
     from .progress import make_progress
+    from .tools.plot import pyplot
     from .tools.sweep import to_markdown
+
+    plot = not no_plot and pyplot(required=False) is not None
+    if not no_plot and not plot:
+        click.echo("Note: matplotlib is not installed; writing sweep.csv and sweep.json, skipping pareto.png", err=True)
 
     def on_row(row):
         if not quiet:
@@ -376,7 +422,7 @@ def sweep(mesh, out_dir, reference_rays, repeats, no_plot, no_fields, up, seed, 
         repeats=repeats,
         fields=not no_fields,
         up=up,
-        plot=not no_plot,
+        plot=plot,
         progress=make_progress(quiet),
         on_row=on_row,
     )

@@ -10,8 +10,10 @@ import contextlib
 import os
 import re
 import signal
+import sys
 import tempfile
 import threading
+import warnings
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -65,6 +67,8 @@ def check_not_input(output: str | Path, inputs) -> None:
     through any path): a command never writes over what it reads."""
     out = Path(output)
     for item in inputs:
+        if not isinstance(item, (str, os.PathLike)):
+            continue  # an in-memory mesh
         with contextlib.suppress(OSError):
             if out.exists() and os.path.samefile(out, item):
                 raise OutputError(f"{output_name(out)}: is also an input; refusing to write over it")
@@ -192,6 +196,31 @@ def atomic_write(path: str | Path) -> Iterator[Path]:
 def _discard(tmp: Path) -> None:
     with _signals_held(), contextlib.suppress(OSError):
         tmp.unlink()
+
+
+@contextlib.contextmanager
+def foreign_stderr(name: str) -> Iterator[None]:
+    """Run a foreign library's C++ code (USD) with file descriptor 2 going to a temporary
+    file. What it printed comes back as Python warnings (``name: text``, a line each) when
+    the body succeeds, which the CLI shows only if the command succeeds; on failure it is
+    dropped, the one-line error says what failed."""
+    sys.stderr.flush()
+    with tempfile.TemporaryFile() as buf:
+        saved = os.dup(2)
+        os.dup2(buf.fileno(), 2)
+        try:
+            yield
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+        buf.seek(0)
+        text = buf.read().decode("utf-8", "replace")
+    for line in text.splitlines():
+        # USD's "Warning: in Func at line N of file.cpp -- text": keep the text
+        line = re.sub(r"^\s*(Warning|Runtime Error|Coding Error|Error):\s*", "", line)
+        line = " ".join(re.sub(r"^in \S+ at line \d+ of \S+ -- ", "", line).split())
+        if line:
+            warnings.warn(f"{name}: {line}", RuntimeWarning, stacklevel=3)
 
 
 #: Longest foreign error text kept in a one-line message.

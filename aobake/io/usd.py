@@ -27,7 +27,7 @@ import numpy as np
 from .._types import FloatArray
 from ..errors import InputError, OutputError
 from ..mesh import RawPart, fan_triangulate, reverse_polygons, transformed_part
-from .common import atomic_write, check_ao, output_name
+from .common import atomic_write, check_ao, foreign_stderr, output_name
 
 #: Largest index a USD ``int[]`` (int32) can hold.
 INT32_MAX = int(np.iinfo(np.int32).max)
@@ -113,7 +113,7 @@ def write_usd(
     meshes = _mesh_arrays(path, surface, ao32)
 
     try:
-        with atomic_write(path) as tmp:
+        with atomic_write(path) as tmp, foreign_stderr(output_name(path)):
             _author_stage(
                 tmp,
                 meshes,
@@ -197,11 +197,12 @@ def _open_fresh(path: Path, Sdf, Usd):
     the file, so it is read through an anonymous layer instead of the registry.
     """
     try:
-        if Sdf.Layer.Find(str(path.resolve())) is not None:
-            layer = Sdf.Layer.OpenAsAnonymous(str(path.resolve()))
-            stage = None if layer is None else Usd.Stage.Open(layer)
-        else:
-            stage = Usd.Stage.Open(str(path.resolve()))
+        with foreign_stderr(path.name):
+            if Sdf.Layer.Find(str(path.resolve())) is not None:
+                layer = Sdf.Layer.OpenAsAnonymous(str(path.resolve()))
+                stage = None if layer is None else Usd.Stage.Open(layer)
+            else:
+                stage = Usd.Stage.Open(str(path.resolve()))
     except Exception as exc:  # pxr raises Tf.ErrorException (not importable by name everywhere)
         # Tf errors read "Error in '<C++ function>' at line N in file F : '<what>'"; keep <what>.
         found = re.findall(r"'([^']*)'", str(exc))
@@ -395,7 +396,8 @@ def read_parts(path: Path, metadata: dict) -> list[RawPart]:
             path, "reading USD needs the usd-core package (pip install usd-core)"
         ) from exc
 
-    stage = Usd.Stage.Open(str(path))
+    with foreign_stderr(path.name):
+        stage = Usd.Stage.Open(str(path))
     if stage is None:
         raise InputError(path, "cannot read as USD: the stage did not open")
     metadata.update(
