@@ -120,32 +120,43 @@ def _umask() -> int:
 #: temporary file writes into it instead of nesting another one; messages name the output).
 _ACTIVE: dict[Path, Path] = {}
 
+#: Signals held back while a temporary file is created or removed, so a Ctrl-C or a
+#: SIGTERM cannot leave one behind between its creation and the cleanup handler.
+_HELD = (signal.SIGINT, signal.SIGTERM)
+
 #: Longest file name most file systems take (bytes).
 _NAME_MAX = 255
 
-#: Signals held back while a temporary file is created or removed, so a Ctrl-C or a
-#: SIGTERM cannot leave one behind between its creation and the cleanup handler.
-_HELD = {signal.SIGINT, signal.SIGTERM}
+#: Bytes left over for USD, which saves through a temporary sibling of its own
+#: (``<name>.XXXXXX``, TfSafeOutputFile).
+_FOREIGN_MARGIN = 8
 
 
 def _temporary_prefix(path: Path) -> str:
-    """``.<stem>.`` cut so the temporary name (prefix, 8 random characters, suffix) stays
-    within 255 bytes (a long output name otherwise fails only for its temporary sibling)."""
-    budget = _NAME_MAX - len(os.fsencode(path.suffix)) - 8 - 2
+    """``.<stem>.`` cut so the temporary name (prefix, 8 random characters, suffix) and
+    USD's own temporary sibling of it stay within 255 bytes (a long output name
+    otherwise fails only for its temporary sibling)."""
+    budget = _NAME_MAX - _FOREIGN_MARGIN - len(os.fsencode(path.suffix)) - 8 - 2
     stem = os.fsencode(path.stem)[: max(budget, 0)]
     return "." + os.fsdecode(stem) + "."
 
 
 @contextlib.contextmanager
 def _signals_held() -> Iterator[None]:
-    main = threading.current_thread() is threading.main_thread()
-    if main:
-        old = signal.pthread_sigmask(signal.SIG_BLOCK, _HELD)
+    """Hold Ctrl-C and SIGTERM back for the body, then deliver what came (the Python
+    handlers are swapped, so this works whichever thread the OS signalled)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    came: list[int] = []
+    previous = {sig: signal.signal(sig, lambda signum, frame: came.append(signum)) for sig in _HELD}
     try:
         yield
     finally:
-        if main:
-            signal.pthread_sigmask(signal.SIG_SETMASK, old)
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+        for sig in dict.fromkeys(came):
+            signal.raise_signal(sig)
 
 
 def _cannot_write(path: Path, exc: OSError) -> OutputError:
@@ -168,17 +179,15 @@ def atomic_write(path: str | Path) -> Iterator[Path]:
         yield path
         return
     check_output_dir(path)
+    tmp = None
     try:
-        with _signals_held():
+        with _signals_held():  # a signal held here is raised inside this try: cleaned up
             fd, tmp_name = tempfile.mkstemp(
                 prefix=_temporary_prefix(path), suffix=path.suffix, dir=path.resolve().parent
             )
-            os.close(fd)
             tmp = Path(tmp_name)
             _ACTIVE[tmp] = path
-    except OSError as exc:
-        raise _cannot_write(path, exc) from None
-    try:
+            os.close(fd)
         yield tmp
         # mkstemp creates 0600; give the output the mode a plain open() would have.
         os.chmod(tmp, 0o666 & ~_umask())
@@ -193,9 +202,10 @@ def atomic_write(path: str | Path) -> Iterator[Path]:
         _ACTIVE.pop(tmp, None)
 
 
-def _discard(tmp: Path) -> None:
-    with _signals_held(), contextlib.suppress(OSError):
-        tmp.unlink()
+def _discard(tmp: Path | None) -> None:
+    if tmp is not None:
+        with _signals_held(), contextlib.suppress(OSError):
+            tmp.unlink()
 
 
 @contextlib.contextmanager
