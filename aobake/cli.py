@@ -14,12 +14,19 @@ import click
 
 from .errors import AobakeError
 from .methods import METHODS
+from .tools.views import VIEWS
 
 AO_CONVENTION = "The attribute `ao` holds 1 - A, the ambient factor (1 = fully open, 0 = fully occluded)."
 
 
 class AobakeGroup(click.Group):
-    """Turns :class:`AobakeError` into ``Error: <file>: <problem>`` and exit code 1."""
+    """Turns :class:`AobakeError` into ``Error: <file>: <problem>`` and exit code 1.
+
+    Warnings (numpy, trimesh's log, USD's stderr) are held while the command runs:
+    shown as ``Warning: ...`` lines when it succeeds, dropped when it fails (the
+    ``Error:`` line is then the only output). SIGTERM ends it like Ctrl-C (temporary
+    files removed), with exit code 143.
+    """
 
     def invoke(self, ctx):
         import threading
@@ -28,16 +35,51 @@ class AobakeGroup(click.Group):
 
         if threading.current_thread() is threading.main_thread():
             progress.install_interrupt_handler()  # Ctrl-C during numba compilation is not lost
+        with _held_warnings() as held:
+            try:
+                result = super().invoke(ctx)
+            except AobakeError as exc:
+                raise click.ClickException(str(exc)) from None
+            except progress.Terminated:
+                ctx.exit(128 + 15)
+            except Exception:
+                # after a Ctrl-C that Python dropped (progress.install_interrupt_handler),
+                # numba may fail in its own way (a half-compiled library): that is the abort
+                if progress.interrupted():
+                    raise click.Abort() from None
+                raise
+        for line in dict.fromkeys(held):  # once each, in order
+            click.echo(f"Warning: {line}", err=True)
+        return result
+
+
+def _held_warnings():
+    """Context manager: collect Python warnings and WARNING log records (trimesh) into
+    a list of one-line messages instead of printing them."""
+    import contextlib
+    import logging
+    import warnings
+
+    class Held(logging.Handler):
+        def emit(self, record):
+            held.append(" ".join(record.getMessage().split()))
+
+    held: list[str] = []
+
+    @contextlib.contextmanager
+    def hold():
+        log = Held(logging.WARNING)
+        root = logging.getLogger()
+        root.addHandler(log)
         try:
-            return super().invoke(ctx)
-        except AobakeError as exc:
-            raise click.ClickException(str(exc)) from None
-        except Exception:
-            # after a Ctrl-C that Python dropped (progress.install_interrupt_handler),
-            # numba may fail in its own way (a half-compiled library): that is the abort
-            if progress.interrupted():
-                raise click.Abort() from None
-            raise
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("default")
+                yield held
+        finally:
+            root.removeHandler(log)
+            held[:0] = [" ".join(str(w.message).split()) for w in caught]
+
+    return hold()
 
 
 class FieldSpec(click.ParamType):
@@ -120,16 +162,15 @@ def _click_type(spec):
 
 
 def _method_fields() -> dict:
-    """``{field: (Spec, default, methods that take it)}`` over every method's options class,
-    in the order the classes list them (seed and threads are common options)."""
+    """``{field: (Spec, {method: default})}`` over every method's options class, in the
+    order the classes list them (the methods that take a field are its dict's keys)."""
     from .methods import METHODS, options_class
     from .options import specs
 
     fields = {}
     for method in METHODS:
         for name, (spec, default) in specs(options_class(method)).items():
-            if name not in ("seed", "threads"):
-                fields.setdefault(name, (spec, default, []))[2].append(method)
+            fields.setdefault(name, (spec, {}))[1][method] = default
     return fields
 
 
@@ -142,7 +183,7 @@ def _shown(spec, default) -> str:
     return f"{default:g}" if spec.kind is float else str(default)
 
 
-def _option(name: str, spec, default, *, set_default: bool = True, text: str | None = None):
+def _option(name: str, spec, default, *, set_default: bool = True, text: str | None = None, show: bool = True):
     """The click option of an option field: flag, type, range, help and shown default from
     its :class:`aobake.options.Spec`. ``set_default=False`` leaves the click default None,
     so a command can tell what the user set (the options class fills in the rest)."""
@@ -153,7 +194,7 @@ def _option(name: str, spec, default, *, set_default: bool = True, text: str | N
         decl = f"{decl}/--no-{decl[2:]}"
     text = text or spec.help
     shown = set_default and default is not None
-    if not shown:  # click would show None: say what it stands for
+    if not shown and show:  # click would show None: say what it stands for
         text = text.rstrip(".") + f" [default: {_shown(spec, default)}]."
     return click.option(
         decl,
@@ -182,24 +223,31 @@ def method_options(f):
     """One option per field of the methods' options classes: flag, type, default and help
     come from the classes (each spelled once there). Their value here is None unless the
     user sets one, so the command can tell what was set; the method's class fills in the
-    rest."""
+    rest. Help names the methods that take an option, and each one's default when they
+    differ."""
     from .methods import METHODS
 
-    for name, (spec, default, owners) in reversed(_method_fields().items()):
+    for name, (spec, defaults) in reversed(_method_fields().items()):
+        owners = list(defaults)
         text = spec.help if len(owners) == len(METHODS) else f"{'/'.join(owners)}: {spec.help}"
-        f = _option(name, spec, default, set_default=False, text=text)(f)
+        shown = {_shown(spec, d) for d in defaults.values()}
+        if len(shown) > 1:
+            text = text.rstrip(".") + " [default: " + ", ".join(f"{m} {_shown(spec, d)}" for m, d in defaults.items()) + "]."
+            f = _option(name, spec, None, set_default=False, text=text, show=False)(f)
+        else:
+            f = _option(name, spec, next(iter(defaults.values())), set_default=False, text=text)(f)
     return f
 
 
-def _method_options(method: str, given: dict, common: dict) -> dict:
-    """What the user set that ``method`` takes: a usage error for a method option it does
-    not take; the ``common`` ones (seed, threads) go only to the methods that take them."""
+def _method_options(method: str, given: dict) -> dict:
+    """What the user set for ``method``: one rule for every option, a usage error when
+    ``method`` does not take it (``--seed 3 --method bunnell``), whatever its value."""
     from .methods import options_class
     from .options import flag, specs
 
     fields = _method_fields()
     takes = specs(options_class(method))
-    out = {k: v for k, v in common.items() if k in takes and v is not None}
+    out = {}
     for name, value in given.items():
         if value is None:
             continue
@@ -246,8 +294,8 @@ def _method_options(method: str, given: dict, common: dict) -> dict:
     "FIELD.npz@tx,ty,tz[,rx,ry,rz] (mesh units; degrees about x, then y, then z). "
     "Repeatable; each multiplies ao by its 1 - A_k.",
 )
-@common_options
-def bake(mesh, output, method, color, up, meters_per_unit, fields, seed, threads, quiet, **given):
+@click.option("--quiet", "-q", is_flag=True, help="No progress bar or summary on stderr.")
+def bake(mesh, output, method, color, up, meters_per_unit, fields, quiet, **given):
     """Bake AO of MESH into OUTPUT as the per-vertex attribute `ao`.
 
     `ao` = 1 - A: 1 = fully open, 0 = fully occluded. MESH: PLY, OBJ, STL, OFF,
@@ -266,7 +314,7 @@ def bake(mesh, output, method, color, up, meters_per_unit, fields, seed, threads
         meters_per_unit=meters_per_unit,
         progress=make_progress(quiet),
         fields=fields,
-        **_method_options(method, given, {"seed": seed, "threads": threads}),
+        **_method_options(method, given),
     )
     if not quiet:
         click.echo(report.summary(), err=True)
@@ -301,7 +349,7 @@ def field_command(occluder, output, quiet, **options):
 @click.argument("reference", type=click.Path(path_type=Path))
 @click.argument("candidate", type=click.Path(path_type=Path))
 @click.option(
-    "--threshold", type=click.FloatRange(min=0), default=0.05, show_default=True, help="Report the share above this |error|."
+    "--threshold", type=NumberRange(min=0), default=0.05, show_default=True, help="Report the share above this |error|."
 )
 @click.option("--worst", type=click.IntRange(min=0), default=10, show_default=True, help="List this many worst vertices.")
 @click.option("--json", "json_path", type=click.Path(path_type=Path), default=None, help="Also write the numbers as JSON.")
@@ -315,7 +363,7 @@ def field_command(occluder, output, quiet, **options):
 def compare(reference, candidate, threshold, worst, json_path, plot_path, render_path, up):
     """Error report of CANDIDATE against REFERENCE (bakes of one mesh: PLY, USD or .npy).
 
-    Prints RMSE, MAE, bias, max and p50/p95/p99 of |error| (error = candidate -
+    Prints RMSE, MAE, mean error, max and p50/p95/p99 of |error| (error = candidate -
     reference, on `ao` = 1 - A), the share of vertices above --threshold and the worst
     vertices.
     """
@@ -361,7 +409,12 @@ def sweep(mesh, out_dir, reference_rays, repeats, no_plot, no_fields, up, seed, 
     """
     from .pipeline import sweep_file
     from .progress import make_progress
+    from .tools.plot import pyplot
     from .tools.sweep import to_markdown
+
+    plot = not no_plot and pyplot(required=False) is not None
+    if not no_plot and not plot:
+        click.echo("Note: matplotlib is not installed; writing sweep.csv and sweep.json, skipping pareto.png", err=True)
 
     def on_row(row):
         if not quiet:
@@ -376,7 +429,7 @@ def sweep(mesh, out_dir, reference_rays, repeats, no_plot, no_fields, up, seed, 
         repeats=repeats,
         fields=not no_fields,
         up=up,
-        plot=not no_plot,
+        plot=plot,
         progress=make_progress(quiet),
         on_row=on_row,
     )
@@ -386,9 +439,21 @@ def sweep(mesh, out_dir, reference_rays, repeats, no_plot, no_fields, up, seed, 
 @main.command()
 @click.argument("bake", type=click.Path(path_type=Path))
 @click.option("-o", "--output", required=True, type=click.Path(path_type=Path), help="Output .png.")
-@click.option("--view", type=click.Choice(["iso", "front", "side", "top"]), default="iso", show_default=True)
-@click.option("--azimuth", type=float, default=None, help="Degrees about the up axis (overrides --view).")
-@click.option("--elevation", type=click.FloatRange(-90, 90), default=None, help="Degrees above the horizon.")
+@click.option("--view", type=click.Choice(list(VIEWS)), default="iso", show_default=True, help="Camera direction.")
+@click.option(
+    "--azimuth",
+    type=float,
+    default=None,
+    help="Degrees about the up axis, overriding --view's "
+    f"[default: the view's: {', '.join(f'{v} {a:g}' for v, (a, _) in VIEWS.items())}].",
+)
+@click.option(
+    "--elevation",
+    type=click.FloatRange(-90, 90),
+    default=None,
+    help="Degrees above the horizon, overriding --view's "
+    f"[default: the view's: {', '.join(f'{v} {e:g}' for v, (_, e) in VIEWS.items())}].",
+)
 @click.option("--size", type=click.IntRange(16, 8192), default=640, show_default=True, help="Image side in pixels.")
 @click.option("--up", type=click.Choice(["Y", "Z"]), default=None, help="Up axis [default: the file's, else Y].")
 def preview(bake, output, view, azimuth, elevation, size, up):

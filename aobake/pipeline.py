@@ -6,6 +6,7 @@ Parses no command-line options and never exits the process.
 from __future__ import annotations
 
 import contextlib
+import math
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -17,8 +18,9 @@ import numpy as np
 from . import __version__
 from ._types import AOArray
 from .constants import DEFAULT_METERS_PER_UNIT, DEFAULT_UP_AXIS
-from .errors import FormatError, NumericalError
+from .errors import FormatError, InputError, NumericalError, OutputError
 from .io import check_output_dir, output_kind
+from .io.common import check_not_input, output_name
 from .mesh import Surface
 from .methods import METHODS
 from .progress import Progress
@@ -91,7 +93,13 @@ def as_surface(mesh: Any) -> Surface:
 def _compute(surface: Surface, method: str, options: dict, progress: Progress | None):
     from .methods import run
 
-    result = run(method, surface, options, progress)
+    try:
+        result = run(method, surface, options, progress)
+    except NumericalError as exc:  # a method's own message, named after the file
+        name = Path(surface.source).name
+        if str(exc).startswith(f"{name}:"):
+            raise
+        raise NumericalError(f"{name}: {exc}") from None
     return result.ao, result.n_rays, result.contacts
 
 
@@ -167,6 +175,7 @@ def bake_file(
     for path in outputs:
         output_kind(path)
         check_output_dir(path)
+        check_not_input(path, [source])
     placed = _load_fields(fields)
     surface = as_surface(source)
     t0 = time.perf_counter()
@@ -181,7 +190,7 @@ def bake_file(
     custom = {"method": method, "version": __version__, "source": Path(str(source)).name}
     custom.update({k: ("none" if v is None else v) for k, v in options.items() if k not in ("threads", "chunk_rays")})
     if placed:
-        custom["fields"] = [name for _, _, name in placed]
+        custom["fields"] = ", ".join(name for _, _, name in placed)  # USD customData takes no lists
     # Stage metrics: what the caller says, else what the input said (USD, glTF), else
     # the documented defaults. An unauthored metersPerUnit would mean centimetres.
     meta = surface.metadata
@@ -239,9 +248,16 @@ def compare_files(
     for out in (json_path, plot_path, render_path):
         if out is not None:
             check_output_dir(out)
+            check_not_input(out, (reference, candidate))
+    if not (threshold >= 0 and math.isfinite(threshold)):
+        raise ValueError(f"threshold must be a finite number >= 0, got {threshold!r}")
     for out in (plot_path, render_path):
         if out is not None and Path(out).suffix.lower() != ".png":
             raise FormatError(f"{Path(out).name}: images are written as PNG; use a .png suffix")
+    if plot_path is not None:
+        from .tools.plot import pyplot
+
+        pyplot()  # before reading anything
     a = read_bake(reference)
     b = read_bake(candidate)
     positions = None
@@ -294,25 +310,27 @@ def sweep_file(
     -------
     rows : list of aobake.tools.sweep.SweepRow
     """
-    import hashlib
-
     from .io import atomic_write
     from .tools import sweep
 
     out_dir = Path(out_dir)
+    if out_dir.exists() and not out_dir.is_dir():
+        raise OutputError(f"{output_name(out_dir)}: exists and is not a directory; sweep writes a directory")
     # the directory may exist (the reference cache lives there); its parent must
     check_output_dir(out_dir / "sweep.csv" if out_dir.is_dir() else out_dir)
+    if plot:
+        from .tools.plot import pyplot
+
+        pyplot()  # matplotlib is checked before the work, not after it
     surface = as_surface(source)
-    out_dir.mkdir(exist_ok=True)
-    digest = hashlib.sha256()
-    digest.update(np.ascontiguousarray(surface.positions).tobytes())
-    digest.update(np.ascontiguousarray(surface.faces).tobytes())
-    digest.update(np.ascontiguousarray(surface.normals).tobytes())
-    key = digest.hexdigest()[:16]
+    try:
+        out_dir.mkdir(exist_ok=True)
+    except OSError as exc:
+        raise OutputError(f"{output_name(out_dir)}: cannot create the directory ({exc.strerror or exc})") from None
+    key = sweep_key(surface)
     cache = out_dir / f"reference_{key}_rays{reference_rays}_seed{seed}.npy"
-    if cache.exists():
-        reference = np.load(cache, allow_pickle=False)
-    else:
+    reference = _cached_reference(cache, surface.n_vertices)
+    if reference is None:
         from .methods.embree import embree_ao
 
         reference = embree_ao(surface, n_rays=reference_rays, seed=seed + 1, threads=threads, progress=progress).ao
@@ -345,6 +363,33 @@ def sweep_file(
     if plot:
         sweep.plot_sweep(rows, out_dir / "pareto.png", title=f"{meta['source']} ({surface.n_vertices} vertices)")
     return rows
+
+
+def sweep_key(surface: Surface) -> str:
+    """The content key of a sweep's cached references (16 hex digits of the mesh's hash)."""
+    import hashlib
+
+    digest = hashlib.sha256()
+    digest.update(np.ascontiguousarray(surface.positions).tobytes())
+    digest.update(np.ascontiguousarray(surface.faces).tobytes())
+    digest.update(np.ascontiguousarray(surface.normals).tobytes())
+    return digest.hexdigest()[:16]
+
+
+def _cached_reference(cache: Path, n: int) -> np.ndarray | None:
+    """A sweep's cached reference ``ao``, or None when there is none yet; a cache that is
+    not ``n`` finite values in [0, 1] (or holds pickled data) is an :class:`InputError`."""
+    if not cache.exists():
+        return None
+    from .io import read_bake
+
+    values = read_bake(cache)  # a 1-D float .npy, pickles refused
+    if values.shape != (n,) or not np.isfinite(values).all() or values.min() < 0 or values.max() > 1:
+        raise InputError(
+            cache,
+            f"not a reference of {n} finite values in [0, 1]; delete it to recompute",
+        )
+    return values
 
 
 def preview_file(
@@ -541,9 +586,8 @@ def _field_sweep(surface, out_dir, key, up_axis, reference_rays, seed, threads, 
         np.vstack([surface.normals, g_normals]),
     )
     cache = out_dir / f"reference_ground{up_axis}_{key}_rays{reference_rays}_seed{seed}.npy"
-    if cache.exists():
-        reference = np.load(cache, allow_pickle=False)
-    else:
+    reference = _cached_reference(cache, len(ground))
+    if reference is None:
         reference = embree_ao(scene, n_rays=reference_rays, seed=seed + 1, threads=threads).ao[n:]
         with atomic_write(cache) as tmp:
             np.save(tmp, reference)

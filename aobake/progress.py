@@ -12,18 +12,22 @@ import sys
 import time
 from typing import Protocol, TextIO
 
-_interrupted = False
+_interrupted = 0  # the signal number of the last interrupt, 0 for none
 _previous_hook = sys.unraisablehook  # what install_interrupt_handler's hook defers to
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised like Ctrl-C so every cleanup (temporary files) runs."""
 
 
 def _on_sigint(signum, frame):
     global _interrupted
-    _interrupted = True
-    raise KeyboardInterrupt
+    _interrupted = signum
+    raise Terminated if signum == signal.SIGTERM else KeyboardInterrupt
 
 
 def install_interrupt_handler() -> None:
-    """Ctrl-C raises KeyboardInterrupt as usual and is also remembered, so that every
+    """Ctrl-C raises KeyboardInterrupt as usual (SIGTERM: :class:`Terminated`) and is also remembered, so that every
     later ``advance`` raises it again. A KeyboardInterrupt raised inside a C callback is
     printed with a traceback and dropped by Python ("Exception ignored on calling ctypes
     callback"): numba's compiler calls back into Python, and an aobake interrupted while
@@ -31,8 +35,9 @@ def install_interrupt_handler() -> None:
     interrupts (``sys.unraisablehook``). Main thread only (the CLI); library code that
     never calls this is unaffected."""
     global _interrupted, _previous_hook
-    _interrupted = False
+    _interrupted = 0
     signal.signal(signal.SIGINT, _on_sigint)
+    signal.signal(signal.SIGTERM, _on_sigint)  # a kill is an interrupt: cleanup runs
     if sys.unraisablehook is not _drop_interrupts:
         _previous_hook = sys.unraisablehook
         sys.unraisablehook = _drop_interrupts
@@ -48,13 +53,13 @@ def _drop_interrupts(unraisable) -> None:
 
 def interrupted() -> bool:
     """Whether Ctrl-C came since :func:`install_interrupt_handler`."""
-    return _interrupted
+    return bool(_interrupted)
 
 
 def check_interrupt() -> None:
     """Raise KeyboardInterrupt if Ctrl-C came since :func:`install_interrupt_handler`."""
     if _interrupted:
-        raise KeyboardInterrupt
+        raise Terminated if _interrupted == signal.SIGTERM else KeyboardInterrupt
 
 
 class Progress(Protocol):

@@ -27,7 +27,7 @@ import numpy as np
 from .._types import FloatArray
 from ..errors import InputError, OutputError
 from ..mesh import RawPart, fan_triangulate, reverse_polygons, transformed_part
-from .common import atomic_write, check_ao
+from .common import atomic_write, check_ao, foreign_stderr, output_name
 
 #: Largest index a USD ``int[]`` (int32) can hold.
 INT32_MAX = int(np.iinfo(np.int32).max)
@@ -100,7 +100,7 @@ def write_usd(
         Bad ``up_axis``, ``meters_per_unit`` or ``custom_data``.
     """
     path = Path(path)
-    ao32 = check_ao(ao, n_vertices=surface.n_vertices, where=path.name)
+    ao32 = check_ao(ao, n_vertices=surface.n_vertices, where=output_name(path))
     up = str(up_axis).upper()
     if up not in UP_AXES:
         raise ValueError(f"up_axis must be 'Y' or 'Z', got {up_axis!r}")
@@ -113,18 +113,18 @@ def write_usd(
     meshes = _mesh_arrays(path, surface, ao32)
 
     try:
-        with atomic_write(path) as tmp:
+        with atomic_write(path) as tmp, foreign_stderr(output_name(path)):
             _author_stage(
                 tmp,
                 meshes,
-                out_name=path.name,
+                out_name=output_name(path),
                 color=color,
                 up_axis=up,
                 meters_per_unit=mpu,
                 custom_data=data,
             )
     except OSError as exc:
-        raise OutputError(f"{path.name}: cannot write ({exc.strerror or exc})") from exc
+        raise OutputError(f"{output_name(path)}: cannot write ({exc.strerror or exc})") from exc
 
 
 def read_ao_usd(path: str | Path) -> np.ndarray:
@@ -197,11 +197,12 @@ def _open_fresh(path: Path, Sdf, Usd):
     the file, so it is read through an anonymous layer instead of the registry.
     """
     try:
-        if Sdf.Layer.Find(str(path.resolve())) is not None:
-            layer = Sdf.Layer.OpenAsAnonymous(str(path.resolve()))
-            stage = None if layer is None else Usd.Stage.Open(layer)
-        else:
-            stage = Usd.Stage.Open(str(path.resolve()))
+        with foreign_stderr(path.name):
+            if Sdf.Layer.Find(str(path.resolve())) is not None:
+                layer = Sdf.Layer.OpenAsAnonymous(str(path.resolve()))
+                stage = None if layer is None else Usd.Stage.Open(layer)
+            else:
+                stage = Usd.Stage.Open(str(path.resolve()))
     except Exception as exc:  # pxr raises Tf.ErrorException (not importable by name everywhere)
         # Tf errors read "Error in '<C++ function>' at line N in file F : '<what>'"; keep <what>.
         found = re.findall(r"'([^']*)'", str(exc))
@@ -252,7 +253,7 @@ def _mesh_arrays(path: Path, surface, ao32: np.ndarray) -> list[dict]:
             )
         if k > INT32_MAX:
             raise OutputError(
-                f"{path.name}: part {part.name!r} has {k} vertices, "
+                f"{output_name(path)}: part {part.name!r} has {k} vertices, "
                 "more than USD int32 indices address"
             )
         counts = np.asarray(part.face_vertex_counts, dtype=np.int64).reshape(-1)
@@ -279,7 +280,7 @@ def _mesh_arrays(path: Path, surface, ao32: np.ndarray) -> list[dict]:
             points = np.ascontiguousarray(positions[vs:ve], dtype=np.float32)
         if not np.isfinite(points).all():
             raise OutputError(
-                f"{path.name}: part {part.name!r} has coordinates that overflow float32"
+                f"{output_name(path)}: part {part.name!r} has coordinates that overflow float32"
             )
         meshes.append(
             {
@@ -395,7 +396,8 @@ def read_parts(path: Path, metadata: dict) -> list[RawPart]:
             path, "reading USD needs the usd-core package (pip install usd-core)"
         ) from exc
 
-    stage = Usd.Stage.Open(str(path))
+    with foreign_stderr(path.name):
+        stage = Usd.Stage.Open(str(path))
     if stage is None:
         raise InputError(path, "cannot read as USD: the stage did not open")
     metadata.update(
