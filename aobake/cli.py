@@ -142,6 +142,18 @@ def _shown(spec, default) -> str:
     return f"{default:g}" if spec.kind is float else str(default)
 
 
+def _clamp_threads(ctx, param, value):
+    """``--threads`` above the core count: the core count, with a note on stderr (more
+    threads than cores only costs memory, and the numba methods cannot start them)."""
+    import os
+
+    cores = os.cpu_count() or 1
+    if value is not None and value > cores:
+        click.echo(f"Note: --threads {value}: this machine has {cores} cores; using {cores}.", err=True)
+        return cores
+    return value
+
+
 def _option(name: str, spec, default, *, set_default: bool = True, text: str | None = None):
     """The click option of an option field: flag, type, range, help and shown default from
     its :class:`aobake.options.Spec`. ``set_default=False`` leaves the click default None,
@@ -162,6 +174,7 @@ def _option(name: str, spec, default, *, set_default: bool = True, text: str | N
         default=default if set_default else None,
         show_default=shown,
         help=text,
+        callback=_clamp_threads if name == "threads" else None,
     )
 
 
@@ -233,7 +246,7 @@ def _method_options(method: str, given: dict, common: dict) -> dict:
 )
 @click.option(
     "--meters-per-unit",
-    type=click.FloatRange(min=0, min_open=True),
+    type=NumberRange(min=0, min_open=True),
     default=None,
     help="USD metersPerUnit [default: the input's, else 1].",
 )
@@ -301,7 +314,7 @@ def field_command(occluder, output, quiet, **options):
 @click.argument("reference", type=click.Path(path_type=Path))
 @click.argument("candidate", type=click.Path(path_type=Path))
 @click.option(
-    "--threshold", type=click.FloatRange(min=0), default=0.05, show_default=True, help="Report the share above this |error|."
+    "--threshold", type=NumberRange(min=0), default=0.05, show_default=True, help="Report the share above this |error|."
 )
 @click.option("--worst", type=click.IntRange(min=0), default=10, show_default=True, help="List this many worst vertices.")
 @click.option("--json", "json_path", type=click.Path(path_type=Path), default=None, help="Also write the numbers as JSON.")
@@ -387,8 +400,8 @@ def sweep(mesh, out_dir, reference_rays, repeats, no_plot, no_fields, up, seed, 
 @click.argument("bake", type=click.Path(path_type=Path))
 @click.option("-o", "--output", required=True, type=click.Path(path_type=Path), help="Output .png.")
 @click.option("--view", type=click.Choice(["iso", "front", "side", "top"]), default="iso", show_default=True)
-@click.option("--azimuth", type=float, default=None, help="Degrees about the up axis (overrides --view).")
-@click.option("--elevation", type=click.FloatRange(-90, 90), default=None, help="Degrees above the horizon.")
+@click.option("--azimuth", type=NumberRange(), default=None, help="Degrees about the up axis (overrides --view).")
+@click.option("--elevation", type=NumberRange(-90, 90), default=None, help="Degrees above the horizon.")
 @click.option("--size", type=click.IntRange(16, 8192), default=640, show_default=True, help="Image side in pixels.")
 @click.option("--up", type=click.Choice(["Y", "Z"]), default=None, help="Up axis [default: the file's, else Y].")
 def preview(bake, output, view, azimuth, elevation, size, up):

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from ._types import FloatArray, IndexArray
-from .constants import NORMAL_EPS
+from .constants import MAX_EXTENT, MIN_EXTENT, NORMAL_EPS
 from .errors import InputError
 
 log = logging.getLogger(__name__)
@@ -246,7 +246,9 @@ def validate_arrays(positions: FloatArray, faces: IndexArray, source: str | Path
     Raises
     ------
     InputError
-        No vertices, no faces, NaN/inf coordinates, or a face index outside ``[0, n)``.
+        No vertices, no faces, NaN/inf coordinates, a face index outside ``[0, n)``,
+        or an extent that is zero or outside what float64 products can hold
+        (:func:`check_extent`).
     """
     n = positions.shape[0]
     if n == 0:
@@ -259,6 +261,25 @@ def validate_arrays(positions: FloatArray, faces: IndexArray, source: str | Path
         first = int(np.flatnonzero(bad)[0])
         raise InputError(
             source, f"{int(bad.sum())} vertices have NaN or inf coordinates (first: vertex {first})"
+        )
+    check_extent(positions, source)
+
+
+def check_extent(positions: FloatArray, source: str | Path) -> None:
+    """Raise :class:`InputError` unless the bounding box's largest side is in
+    ``[MIN_EXTENT, MAX_EXTENT]``: zero (every vertex at one point) has no AO, and beyond
+    these limits float64 products of coordinates (areas, normals) underflow or overflow."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        extent = float((positions.max(axis=0) - positions.min(axis=0)).max())
+    if extent == 0.0:
+        raise InputError(source, "all vertices are at one point (the mesh has zero extent)")
+    if not np.isfinite(extent) or extent > MAX_EXTENT:
+        raise InputError(
+            source, f"coordinates span {extent:.3g}, more than the {MAX_EXTENT:g} aobake supports"
+        )
+    if extent < MIN_EXTENT:
+        raise InputError(
+            source, f"coordinates span {extent:.3g}, less than the {MIN_EXTENT:g} aobake supports"
         )
 
 

@@ -27,7 +27,7 @@ import numpy as np
 from .._types import FloatArray
 from ..errors import InputError, OutputError
 from ..mesh import RawPart, fan_triangulate, reverse_polygons, transformed_part
-from .common import atomic_write, check_ao
+from .common import atomic_write, check_ao, check_input_file
 
 #: Largest index a USD ``int[]`` (int32) can hold.
 INT32_MAX = int(np.iinfo(np.int32).max)
@@ -150,11 +150,7 @@ def read_ao_usd(path: str | Path) -> np.ndarray:
         a mesh lacks one while others have it, or the primvar is not one value per
         point.
     """
-    path = Path(path)
-    if not path.exists():
-        raise InputError(path, "file not found")
-    if path.is_dir():
-        raise InputError(path, "is a directory, not a USD file")
+    path = check_input_file(path, "USD file")
     from pxr import Sdf, Usd, UsdGeom
 
     stage = _open_fresh(path, Sdf, Usd)
