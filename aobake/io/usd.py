@@ -253,10 +253,11 @@ def _mesh_arrays(path: Path, surface, ao32: np.ndarray) -> list[dict]:
             )
         counts = np.asarray(part.face_vertex_counts, dtype=np.int64).reshape(-1)
         indices = np.asarray(part.face_vertex_indices, dtype=np.int64).reshape(-1)
-        if counts.size and counts.min() < 3:
+        # faces of fewer than 3 corners are written as the input had them (USD keeps
+        # them; renderers skip them); only negative counts are nonsense
+        if counts.size and counts.min() < 0:
             raise InputError(
-                surface.source,
-                f"part {part.name!r}: {int((counts < 3).sum())} faces have fewer than 3 corners",
+                surface.source, f"part {part.name!r}: {int((counts < 0).sum())} negative face counts"
             )
         if int(counts.sum()) != indices.size:
             raise InputError(
