@@ -183,6 +183,18 @@ def _shown(spec, default) -> str:
     return f"{default:g}" if spec.kind is float else str(default)
 
 
+def _clamp_threads(ctx, param, value):
+    """``--threads`` above the core count: the core count, with a note on stderr (more
+    threads than cores only costs memory, and the numba methods cannot start them)."""
+    import os
+
+    cores = os.cpu_count() or 1
+    if value is not None and value > cores:
+        click.echo(f"Note: --threads {value}: this machine has {cores} cores; using {cores}.", err=True)
+        return cores
+    return value
+
+
 def _option(name: str, spec, default, *, set_default: bool = True, text: str | None = None, show: bool = True):
     """The click option of an option field: flag, type, range, help and shown default from
     its :class:`aobake.options.Spec`. ``set_default=False`` leaves the click default None,
@@ -203,6 +215,7 @@ def _option(name: str, spec, default, *, set_default: bool = True, text: str | N
         default=default if set_default else None,
         show_default=shown,
         help=text,
+        callback=_clamp_threads if name == "threads" else None,
     )
 
 
@@ -281,7 +294,7 @@ def _method_options(method: str, given: dict) -> dict:
 )
 @click.option(
     "--meters-per-unit",
-    type=click.FloatRange(min=0, min_open=True),
+    type=NumberRange(min=0, min_open=True),
     default=None,
     help="USD metersPerUnit [default: the input's, else 1].",
 )
@@ -442,14 +455,14 @@ def sweep(mesh, out_dir, reference_rays, repeats, no_plot, no_fields, up, seed, 
 @click.option("--view", type=click.Choice(list(VIEWS)), default="iso", show_default=True, help="Camera direction.")
 @click.option(
     "--azimuth",
-    type=float,
+    type=NumberRange(),
     default=None,
     help="Degrees about the up axis, overriding --view's "
     f"[default: the view's: {', '.join(f'{v} {a:g}' for v, (a, _) in VIEWS.items())}].",
 )
 @click.option(
     "--elevation",
-    type=click.FloatRange(-90, 90),
+    type=NumberRange(-90, 90),
     default=None,
     help="Degrees above the horizon, overriding --view's "
     f"[default: the view's: {', '.join(f'{v} {e:g}' for v, (_, e) in VIEWS.items())}].",

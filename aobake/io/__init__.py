@@ -19,6 +19,7 @@ from .common import (
     BAKE_SUFFIXES,
     atomic_write,
     check_ao,
+    check_input_file,
     check_output_dir,
     output_kind,
     short_reason,
@@ -32,6 +33,7 @@ __all__ = [
     "READ_SUFFIXES",
     "atomic_write",
     "check_ao",
+    "check_input_file",
     "check_output_dir",
     "load_mesh",
     "output_kind",
@@ -86,7 +88,7 @@ def load_mesh(path: str | Path) -> Surface:
     Raises
     ------
     InputError
-        Missing file, directory, unsupported suffix, unreadable or malformed data, empty
+        Missing file, directory, FIFO or device, unsupported suffix, unreadable or malformed data, empty
         mesh, no faces, NaN/inf coordinates, or indices out of range. The message is one
         line starting with the file name; foreign exceptions are chained.
 
@@ -100,10 +102,7 @@ def load_mesh(path: str | Path) -> Surface:
     """
     path = Path(path)
     fmt = INPUT_FORMATS.get(path.suffix.lower())
-    if not path.exists():
-        raise InputError(path, "file not found")
-    if path.is_dir():
-        raise InputError(path, "is a directory, not a mesh file")
+    check_input_file(path)
     if fmt is None:
         supported = ", ".join(sorted(INPUT_FORMATS))
         raise InputError(
@@ -230,7 +229,7 @@ def read_bake(path: str | Path, *, n_vertices: int | None = None) -> np.ndarray:
     Raises
     ------
     InputError
-        Missing or unreadable file, unsupported suffix, no ``ao`` data, an ``.npy``
+        Missing or unreadable file (or not a regular file), unsupported suffix, no ``ao`` data, an ``.npy``
         that is not a 1-D float array, or a count different from ``n_vertices``.
     """
     path = Path(path)
@@ -255,6 +254,7 @@ def read_bake(path: str | Path, *, n_vertices: int | None = None) -> np.ndarray:
 
 def _read_npy(path: Path) -> np.ndarray:
     """A 1-D float ``.npy`` array as float64 (no pickles)."""
+    check_input_file(path, ".npy file")
     try:
         array = np.load(path, allow_pickle=False)
     except FileNotFoundError:

@@ -27,7 +27,7 @@ import numpy as np
 from .._types import FloatArray
 from ..errors import InputError, OutputError
 from ..mesh import RawPart, fan_triangulate, reverse_polygons, transformed_part
-from .common import atomic_write, check_ao, foreign_stderr, output_name
+from .common import atomic_write, check_ao, check_input_file, foreign_stderr, output_name
 
 #: Largest index a USD ``int[]`` (int32) can hold.
 INT32_MAX = int(np.iinfo(np.int32).max)
@@ -150,11 +150,7 @@ def read_ao_usd(path: str | Path) -> np.ndarray:
         a mesh lacks one while others have it, or the primvar is not one value per
         point.
     """
-    path = Path(path)
-    if not path.exists():
-        raise InputError(path, "file not found")
-    if path.is_dir():
-        raise InputError(path, "is a directory, not a USD file")
+    path = check_input_file(path, "USD file")
     from pxr import Sdf, Usd, UsdGeom
 
     stage = _open_fresh(path, Sdf, Usd)
@@ -258,10 +254,11 @@ def _mesh_arrays(path: Path, surface, ao32: np.ndarray) -> list[dict]:
             )
         counts = np.asarray(part.face_vertex_counts, dtype=np.int64).reshape(-1)
         indices = np.asarray(part.face_vertex_indices, dtype=np.int64).reshape(-1)
-        if counts.size and counts.min() < 3:
+        # faces of fewer than 3 corners are written as the input had them (USD keeps
+        # them; renderers skip them); only negative counts are nonsense
+        if counts.size and counts.min() < 0:
             raise InputError(
-                surface.source,
-                f"part {part.name!r}: {int((counts < 3).sum())} faces have fewer than 3 corners",
+                surface.source, f"part {part.name!r}: {int((counts < 0).sum())} negative face counts"
             )
         if int(counts.sum()) != indices.size:
             raise InputError(

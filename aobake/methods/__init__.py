@@ -56,6 +56,9 @@ def make_options(name: str, options=None, **changes):
 
 def run(name: str, surface, options=None, progress=None, **changes) -> MethodResult:
     """Bake ``surface`` with method ``name``; ``options`` as :func:`make_options` takes them."""
+    from ..mesh import check_extent
+
     opts = make_options(name, options, **changes)
+    check_extent(surface.positions, surface.source)  # every vertex at one point: no AO
     module = importlib.import_module(f"{__name__}.{name}")
     return module.run(surface, opts, progress)
