@@ -29,7 +29,8 @@ $(STAMP): pyproject.toml
 	$(PY) -m pip install --quiet -e '.[test,plot]'
 	@touch $@
 
-bake: $(STAMP) ## Bake every mesh in data/ into out/ (PLY and USD)
+bake: $(STAMP) ## Compile the kernels once (aobake warm-up), then bake every mesh in data/ into out/ (PLY and USD)
+	$(AOBAKE) warm-up
 	@$(MAKE) --no-print-directory batch IN=data OUT=out
 
 batch: $(STAMP) $(OUT_PLY) $(OUT_USD) ## Bake IN=dir into OUT=dir (parallel with -j, only what changed)
