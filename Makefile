@@ -29,8 +29,10 @@ $(STAMP): pyproject.toml
 	$(PY) -m pip install --quiet -e '.[test,plot]'
 	@touch $@
 
-# Says what it baked ("baked data/x.ply -> ..."), or that nothing needed baking.
-bake: $(STAMP) ## Bake every mesh in data/ into out/ (PLY and USD)
+# Compiles the kernels once (aobake warm-up, quick when cached), then says what it baked
+# ("baked data/x.ply -> ..."), or that nothing needed baking.
+bake: $(STAMP) ## Compile the kernels once (aobake warm-up), then bake every mesh in data/ into out/ (PLY and USD)
+	@$(AOBAKE) warm-up
 	@if $(MAKE) -q --no-print-directory batch IN=$(IN) OUT=$(OUT); then \
 	  echo "$(OUT)/ is up to date ($(words $(STEMS)) meshes)"; \
 	else $(MAKE) --no-print-directory batch IN=$(IN) OUT=$(OUT); fi

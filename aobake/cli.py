@@ -112,6 +112,14 @@ class FieldSpec(click.ParamType):
         return Path(str(value)), None
 
 
+def compile_notice(quiet: bool):
+    """A :class:`aobake.progress.CompileWatch` that says "compiling kernels (first run
+    only) ..." on stderr when numba starts compiling, unless ``quiet``."""
+    from .progress import CompileWatch
+
+    return CompileWatch(None if quiet else sys.stderr)
+
+
 def common_options(f):
     """--seed, --threads, --quiet: shared by every command that computes (seed and threads
     as :mod:`aobake.options` defines them)."""
@@ -318,17 +326,18 @@ def bake(mesh, output, method, color, up, meters_per_unit, fields, quiet, **give
     from .pipeline import bake_file
     from .progress import make_progress
 
-    report = bake_file(
-        mesh,
-        output,
-        method=method,
-        color=color,
-        up_axis=up,
-        meters_per_unit=meters_per_unit,
-        progress=make_progress(quiet),
-        fields=fields,
-        **_method_options(method, given),
-    )
+    with compile_notice(quiet):
+        report = bake_file(
+            mesh,
+            output,
+            method=method,
+            color=color,
+            up_axis=up,
+            meters_per_unit=meters_per_unit,
+            progress=make_progress(quiet),
+            fields=fields,
+            **_method_options(method, given),
+        )
     if not quiet:
         click.echo(report.summary(), err=True)
 
@@ -353,7 +362,8 @@ def field_command(occluder, output, quiet, **options):
     from .pipeline import fit_field_file
     from .progress import make_progress
 
-    report = fit_field_file(occluder, output, progress=make_progress(quiet), **options)
+    with compile_notice(quiet):
+        report = fit_field_file(occluder, output, progress=make_progress(quiet), **options)
     if not quiet:
         click.echo(report.summary(), err=True)
 
@@ -433,19 +443,20 @@ def sweep(mesh, out_dir, reference_rays, repeats, no_plot, no_fields, up, seed, 
         if not quiet:
             click.echo(f"  {row.method:8s} {row.label:24s} {row.seconds:8.3f} s  RMSE {row.rmse:.4f}", err=True)
 
-    rows = sweep_file(
-        mesh,
-        out_dir,
-        reference_rays=reference_rays,
-        seed=seed,
-        threads=threads,
-        repeats=repeats,
-        fields=not no_fields,
-        up=up,
-        plot=plot,
-        progress=make_progress(quiet),
-        on_row=on_row,
-    )
+    with compile_notice(quiet):
+        rows = sweep_file(
+            mesh,
+            out_dir,
+            reference_rays=reference_rays,
+            seed=seed,
+            threads=threads,
+            repeats=repeats,
+            fields=not no_fields,
+            up=up,
+            plot=plot,
+            progress=make_progress(quiet),
+            on_row=on_row,
+        )
     click.echo(to_markdown(rows))
 
 
@@ -473,7 +484,27 @@ def preview(bake, output, view, azimuth, elevation, size, up):
     """Render BAKE (a PLY or USD file with `ao`) to a PNG: AO as grey, white = open."""
     from .pipeline import preview_file
 
-    preview_file(bake, output, size=size, up=up, view=view, azimuth=azimuth, elevation=elevation)
+    with compile_notice(False):
+        preview_file(bake, output, size=size, up=up, view=view, azimuth=azimuth, elevation=elevation)
+
+
+@main.command("warm-up")
+@click.option("--quiet", "-q", is_flag=True, help="No progress bar or summary on stderr.")
+def warm_up_command(quiet):
+    """Compile the kernels every command needs, once, so that later runs start at once.
+
+    numba compiles aobake's kernels on their first use and caches them on disk (a
+    minute or two on a new install, then never again). This bakes a tiny built-in scene
+    with every method, fits and applies a small field and renders a preview, nothing
+    written outside a temporary directory. `make bake` runs it first.
+    """
+    from .pipeline import warm_up
+    from .progress import make_progress
+
+    with compile_notice(quiet):
+        report = warm_up(progress=make_progress(quiet))
+    if not quiet:
+        click.echo(report.summary(), err=True)
 
 
 if __name__ == "__main__":  # pragma: no cover

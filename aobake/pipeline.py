@@ -23,7 +23,7 @@ from .io import check_output_dir, output_kind
 from .io.common import check_not_input, output_name
 from .mesh import Surface
 from .methods import METHODS
-from .progress import Progress
+from .progress import CompileWatch, Progress, compile_note
 
 
 @dataclass(frozen=True)
@@ -38,14 +38,16 @@ class BakeReport:
     n_rays : int
         Rays cast in total (0 for methods that cast none).
     seconds : float
-        Compute time (loading and writing excluded).
+        Compute time (loading, writing and compiling kernels excluded).
     contacts : int
         Vertices whose ray origin was mirrored at a contact (embree).
     options : dict
     field_skipped : tuple of int
         Per ``--field``, receivers beyond its r_far (not evaluated).
     field_seconds : float
-        Time spent evaluating the fields (not in ``seconds``).
+        Time spent evaluating the fields (not in ``seconds``; compiling excluded).
+    compile_seconds : float
+        Time numba spent compiling kernels (a cold cache: the first run), in neither.
     """
 
     source: str
@@ -58,9 +60,10 @@ class BakeReport:
     options: dict = field(default_factory=dict)
     field_skipped: tuple = ()
     field_seconds: float = 0.0
+    compile_seconds: float = 0.0
 
     def summary(self) -> str:
-        """One line: vertices, rays, seconds, rays per second."""
+        """One line: vertices, rays, seconds, rays per second, compile time if any."""
         text = f"{self.source}: {self.n_vertices} vertices, {self.method}"
         if self.n_rays:
             rate = self.n_rays / self.seconds if self.seconds > 0 else float("inf")
@@ -75,7 +78,7 @@ class BakeReport:
                 f", x {len(self.field_skipped)} field(s) in {self.field_seconds:.2f} s"
                 f" ({skipped} receivers beyond r_far)"
             )
-        return text + f" -> {self.output}"
+        return text + compile_note(self.compile_seconds) + f" -> {self.output}"
 
 
 def as_surface(mesh: Any) -> Surface:
@@ -178,13 +181,15 @@ def bake_file(
         check_not_input(path, [source])
     placed = _load_fields(fields)
     surface = as_surface(source)
-    t0 = time.perf_counter()
-    ao, n_rays, contacts = _compute(surface, method, options, progress)
-    seconds = time.perf_counter() - t0
-    skipped: tuple = ()
-    if placed:
-        ao, skipped = _apply_fields(surface, ao, placed, options.get("threads"))
-    field_seconds = time.perf_counter() - t0 - seconds
+    # compiling kernels (a cold numba cache) is kept out of both times
+    with CompileWatch() as watch:
+        t0 = time.perf_counter()
+        ao, n_rays, contacts = _compute(surface, method, options, progress)
+        seconds = time.perf_counter() - t0 - watch.seconds
+        skipped: tuple = ()
+        if placed:
+            ao, skipped = _apply_fields(surface, ao, placed, options.get("threads"))
+        field_seconds = time.perf_counter() - t0 - seconds - watch.seconds
     if ao.shape != (surface.n_vertices,):
         raise NumericalError(f"{surface.source}: {method} returned {ao.shape} values for {surface.n_vertices} vertices")
     custom = {"method": method, "version": __version__, "source": Path(str(source)).name}
@@ -218,6 +223,7 @@ def bake_file(
         options=dict(options),
         field_skipped=skipped,
         field_seconds=field_seconds if placed else 0.0,
+        compile_seconds=watch.seconds,
     )
 
 
@@ -453,9 +459,11 @@ class FieldReport:
     source, output : str
     field : AOField
     seconds : float
-        Fit time (loading and writing excluded).
+        Fit time (loading, writing and compiling kernels excluded).
     n_bytes : int
         Size of the written file.
+    compile_seconds : float
+        Time numba spent compiling kernels (a cold cache: the first run).
     """
 
     source: str
@@ -463,6 +471,7 @@ class FieldReport:
     field: Any
     seconds: float
     n_bytes: int
+    compile_seconds: float = 0.0
 
     def summary(self) -> str:
         """One line: layout, sampler, time, fit residuals, size."""
@@ -473,7 +482,8 @@ class FieldReport:
             f"{self.source}: field {f.resolution}x{f.resolution}x6, {p.get('radial_samples')} radial samples, "
             f"{f.model} model, {p.get('sampler')} ({quality}) in {self.seconds:.2f} s; "
             f"residuals Omega {f.omega_rms:.4f} sr, Y {f.y_rms_degrees:.2f} deg; "
-            f"r_far {f.r_far:.4g}; {self.n_bytes / 1024:.0f} KB -> {self.output}"
+            f"r_far {f.r_far:.4g}; {self.n_bytes / 1024:.0f} KB{compile_note(self.compile_seconds)}"
+            f" -> {self.output}"
         )
 
 
@@ -501,14 +511,16 @@ def fit_field_file(
         raise FormatError(f"{output.name}: a field is written as .npz, got {output.suffix or '(no suffix)'!r}")
     check_output_dir(output)
     surface = as_surface(source)
-    result = fit_field(surface, progress=progress, **options)
+    with CompileWatch() as watch:  # the fit's time excludes compiling kernels
+        result = fit_field(surface, progress=progress, **options)
     save_field(result, output)
     return FieldReport(
         source=Path(str(source)).name,
         output=str(output),
         field=result,
-        seconds=result.seconds,
+        seconds=max(result.seconds - watch.seconds, 0.0),
         n_bytes=output.stat().st_size,
+        compile_seconds=watch.seconds,
     )
 
 
@@ -597,3 +609,90 @@ def _field_sweep(surface, out_dir, key, up_axis, reference_rays, seed, threads, 
         return field_ao(f, ground, g_normals, threads=threads), 0
 
     return sweep.run_sweep(compute, reference, sweep.field_grid(), repeats=repeats, on_row=on_row)
+
+
+# --------------------------------------------------------------------------------------
+# the first run
+
+
+@dataclass(frozen=True)
+class WarmUpReport:
+    """What :func:`warm_up` did.
+
+    Attributes
+    ----------
+    steps : tuple of str
+        The commands run, in order.
+    seconds : float
+        Wall time of the whole warm-up.
+    compile_seconds : float
+        Of it, numba compiling kernels (0 when the cache was already warm).
+    kernels : int
+        Kernel specialisations compiled.
+    """
+
+    steps: tuple
+    seconds: float
+    compile_seconds: float
+    kernels: int
+
+    def summary(self) -> str:
+        """One line: what ran, how long, how much of it was compiling."""
+        done = "compiled" if self.kernels else "already compiled (cache warm)"
+        return (
+            f"warm-up: {', '.join(self.steps)}: kernels {done}; {self.seconds:.1f} s"
+            + (f", of it {self.compile_seconds:.1f} s compiling {self.kernels} kernels" if self.kernels else "")
+        )
+
+
+def warm_up_scene():
+    """The warm-up's built-in scene: a unit cube resting on an 8 x 8 grid (+Y up), with
+    contacts, a crevice and open ground: (positions, faces) in float64 / int64."""
+    import trimesh
+
+    cube = trimesh.creation.box(extents=(1.0, 1.0, 1.0))
+    cube_p = np.asarray(cube.vertices, dtype=np.float64) + [0.0, 0.5, 0.0]
+    t = np.linspace(-2.0, 2.0, 9)
+    x, z = np.meshgrid(t, t, indexing="ij")
+    grid_p = np.c_[x.ravel(), np.zeros(x.size), z.ravel()]
+    i, j = np.meshgrid(np.arange(8), np.arange(8), indexing="ij")
+    a = (i * 9 + j).ravel()
+    grid_f = np.vstack([np.c_[a, a + 1, a + 10], np.c_[a, a + 10, a + 9]])  # facing +Y
+    positions = np.vstack([cube_p, grid_p])
+    faces = np.vstack([np.asarray(cube.faces, dtype=np.int64), grid_f + len(cube_p)])
+    return positions, faces
+
+
+def warm_up(progress: Progress | None = None) -> WarmUpReport:
+    """Compile what the commands need (numba caches it on disk), so that a user's first
+    ``aobake bake`` / ``field`` / ``preview`` does not: every method, a small field fit and
+    its use in a bake, and a preview, all through the same file paths the commands take,
+    on a tiny built-in scene (:func:`warm_up_scene`) in a temporary directory that is
+    removed afterwards. Seconds on a warm cache; a cold one takes what compiling takes."""
+    import tempfile
+
+    import trimesh
+
+    steps = []
+    with CompileWatch() as watch, tempfile.TemporaryDirectory(prefix="aobake-warm-up-") as tmp:
+        t0 = time.perf_counter()
+        d = Path(tmp)
+        positions, faces = warm_up_scene()
+        trimesh.Trimesh(positions, faces, process=False).export(d / "scene.ply")
+        cube = trimesh.creation.box(extents=(1.0, 1.0, 1.0))
+        cube.export(d / "cube.ply")
+        for method in METHODS:
+            bake_file(d / "scene.ply", [d / f"{method}.ply", d / f"{method}.usda"], method=method,
+                      progress=progress)
+            steps.append(f"bake --method {method}")
+        fit_field_file(d / "cube.ply", d / "cube.npz", progress=progress, resolution=4, radial_samples=8)
+        steps.append("field")
+        grid = d / "grid.ply"
+        trimesh.Trimesh(positions[8:], faces[12:] - 8, process=False).export(grid)
+        bake_file(grid, d / "grid_field.ply", method=METHODS[0], fields=[(d / "cube.npz", (0.0, 0.5, 0.0))],
+                  progress=progress)
+        steps.append("bake --field")
+        preview_file(d / f"{METHODS[0]}.ply", d / "preview.png", size=16)
+        steps.append("preview")
+        seconds = time.perf_counter() - t0
+    return WarmUpReport(steps=tuple(steps), seconds=seconds, compile_seconds=watch.seconds, kernels=watch.count)

@@ -2,7 +2,9 @@
 
 A bar is drawn on stderr only when stderr is a terminal and ``--quiet`` is off, so logs
 and CI output stay clean. ``advance`` is also where an interrupt that was swallowed is
-raised again (:func:`install_interrupt_handler`). Imports only the standard library.
+raised again (:func:`install_interrupt_handler`). :class:`CompileWatch` notes numba
+compiling kernels (a cold cache: the first run). Imports only the standard library
+(numba when a CompileWatch starts).
 """
 
 from __future__ import annotations
@@ -126,6 +128,78 @@ class StderrProgress:
             f"\r{self.label} [{bar}] {100 * frac:5.1f}% {elapsed:6.1f}s eta {eta:5.1f}s"
         )
         self.stream.flush()
+
+
+COMPILING = "compiling kernels (first run only) ..."
+
+
+class CompileWatch:
+    """While active (``with``), notes numba compiling kernels: a cache miss, so the first
+    run or a new kind of input. ``seconds`` is the wall time spent compiling (a kernel's
+    callees compiled on the way count once, in its time), ``count`` the
+    specialisations compiled. With a ``stream``, says :data:`COMPILING` there once, when
+    the first compile starts. Timers subtract ``seconds`` to keep compiling out of
+    reported times; watches nest (each registers its own numba listener)."""
+
+    def __init__(self, stream: TextIO | None = None):
+        self.stream = stream
+        self.seconds = 0.0
+        self.count = 0
+        self._depth = 0
+        self._t0 = 0.0
+        self._said = False
+        self._listener = None
+
+    def _start(self) -> None:
+        if self._depth == 0:
+            self._t0 = time.perf_counter()
+            self._say()
+        self._depth += 1
+        self.count += 1
+
+    def _end(self) -> None:
+        self._depth -= 1
+        if self._depth == 0:
+            self.seconds += time.perf_counter() - self._t0
+
+    def _say(self) -> None:
+        if self.stream is None or self._said:
+            return
+        self._said = True
+        # on a terminal a progress bar may be drawn on this line: clear it first
+        clear = "\r\x1b[K" if getattr(self.stream, "isatty", lambda: False)() else ""
+        self.stream.write(f"{clear}{COMPILING}\n")
+        self.stream.flush()
+
+    def __enter__(self) -> CompileWatch:
+        from numba.core import event  # numba compiles under one lock: events never overlap
+
+        watch = self
+
+        class _Listener(event.Listener):
+            def on_start(self, ev):
+                watch._start()
+
+            def on_end(self, ev):
+                watch._end()
+
+        self._listener = _Listener()
+        event.register("numba:compile", self._listener)
+        return self
+
+    def __exit__(self, *exc) -> None:
+        from numba.core import event
+
+        event.unregister("numba:compile", self._listener)
+        self._listener = None
+        if self._depth:  # left while compiling (an interrupt): count it up to now
+            self.seconds += time.perf_counter() - self._t0
+            self._depth = 0
+
+
+def compile_note(seconds: float) -> str:
+    """The summary's mention of compile time, "" when nothing compiled."""
+    return f" (+ {seconds:.1f} s compiling kernels, first run only)" if seconds > 0 else ""
 
 
 def make_progress(quiet: bool, stream: TextIO | None = None) -> Progress:
