@@ -121,7 +121,8 @@ def find_inputs(paths: Sequence[str | Path], exclude: Path | None = None) -> lis
     A path is a mesh file (relative path: its name), a directory (its meshes, searched
     recursively, relative to it; hidden files skipped), a ``.txt``/``.lst`` file listing
     such paths one a line (relative to the list; ``#`` starts a comment) or a glob pattern
-    (``**`` recurses). Files under ``exclude`` (the output directory) are skipped.
+    (``**`` recurses). Files that directories, lists and patterns find under ``exclude``
+    (the output directory) are skipped.
     """
     suffixes = _mesh_suffixes()
     found: dict[Path, Path] = {}
@@ -140,8 +141,8 @@ def find_inputs(paths: Sequence[str | Path], exclude: Path | None = None) -> lis
             return
         if path.is_file():
             suffix = path.suffix.lower()
-            if suffix in suffixes:
-                if not excluded(path):
+            if suffix in suffixes:  # named: kept even inside OUTDIR (plan() refuses overwrites)
+                if depth == 0 or not excluded(path):
                     found.setdefault(path.resolve(), Path(path.name))
                 return
             if suffix in LIST_SUFFIXES and depth == 0:
@@ -563,7 +564,7 @@ def _prepare(paths, outdir: Path, formats, settings: Settings, split: int) -> li
         raise OutputError(f"{outdir}: exists and is not a directory")
     jobs = plan(find_inputs(paths, exclude=outdir), outdir, formats)
     if not jobs:
-        raise InputError(None, "no mesh files found in " + " ".join(str(p) for p in paths))
+        raise AobakeError("no mesh files found in " + " ".join(str(p) for p in paths))
     return jobs
 
 
@@ -591,13 +592,13 @@ def _run(pending, outdir, settings, split, retries, client, scheduler, workers, 
             else:
                 final = client.submit(bake_task, job, settings, slots, str(outdir), retries=retries, pure=False)
             futures[final] = job
-        for future in as_completed(list(futures)):
+        def record(future) -> None:
             job = futures.pop(future)
             if future.status == "finished":
-                record = future.result()
+                rec = future.result()
             else:
-                record = {"status": "failed", "error": _error_line(future.exception(), retries), "worker": ""}
-            record.update(
+                rec = {"status": "failed", "error": _error_line(future.exception(), retries), "worker": ""}
+            rec.update(
                 input=job.key,
                 source=job.source,
                 outputs=[os.path.relpath(o, outdir) for o in job.outputs],
@@ -605,18 +606,26 @@ def _run(pending, outdir, settings, split, retries, client, scheduler, workers, 
                 options_key=key,
                 version=__version__,
             )
-            record.setdefault("method", settings.method)
-            records[job.key] = record
-            if record["status"] == "failed":
+            rec.setdefault("method", settings.method)
+            records[job.key] = rec
+            if rec["status"] == "failed":
                 result.failed += 1
                 if on_failure is not None:
-                    on_failure(record)
+                    on_failure(rec)
             else:
                 result.done += 1
             bar.update(result.done, result.failed, result.skipped)
-            if time.perf_counter() - last_write > 5.0:  # a killed client loses little
-                write_manifest(outdir, records, described)
-                last_write = time.perf_counter()
+
+        try:
+            for future in as_completed(list(futures)):
+                record(future)
+                if time.perf_counter() - last_write > 5.0:  # a killed client loses little
+                    write_manifest(outdir, records, described)
+                    last_write = time.perf_counter()
+        except KeyboardInterrupt:  # keep what has finished; the rest is cancelled below
+            for future in [f for f in futures if f.status == "finished"]:
+                record(future)
+            raise
     finally:
         if futures:  # interrupted: drop what has not run; running tasks end atomically
             client.cancel(list(futures), force=True)
