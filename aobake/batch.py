@@ -375,14 +375,19 @@ def bake_task(job: Job, settings: Settings, slots: dict, outdir: str) -> dict:
 
 
 def part_task(job: Job, settings: Settings, part: tuple, slots: dict):
-    """Vertex range ``part = (k, K)`` of one input: a PartResult, or a _Failure."""
+    """Vertex range ``part = (k, K)`` of one input: ``(PartResult, surface or None)``, or a
+    _Failure. The first range also returns the loaded mesh: the stitching task then runs
+    on its worker (Dask places a task by the bytes of its inputs) and does not read the
+    file again."""
+    from .io import load_mesh
     from .pipeline import bake_part
 
     kw = settings.bake_kwargs(_worker_threads(slots))
     for name in ("color", "up_axis", "meters_per_unit", "fields"):
         kw.pop(name)
     try:
-        return bake_part(job.source, parts=part, **kw)
+        surface = load_mesh(job.source)
+        return bake_part(surface, parts=part, **kw), surface if part[0] == 0 else None
     except AobakeError as exc:
         return _Failure(str(exc))
 
@@ -394,8 +399,11 @@ def write_task(job: Job, settings: Settings, outdir: str, *parts) -> dict:
     failed = [p for p in parts if isinstance(p, _Failure)]
     if failed:
         return {"status": "failed", "error": failed[0].error, "worker": _worker_name()}
+    surface = parts[0][1]
     try:
-        report = write_parts(job.source, job.outputs, list(parts), **settings.bake_kwargs(None))
+        report = write_parts(
+            job.source, job.outputs, [p for p, _ in parts], surface=surface, **settings.bake_kwargs(None)
+        )
     except AobakeError as exc:
         return {"status": "failed", "error": str(exc), "worker": _worker_name()}
     return _record(report, job, outdir)

@@ -369,19 +369,23 @@ def batch(
     def on_failure(record):  # below the bar, which redraws on the next line
         click.echo(("" if isinstance(bar, NullBatchBar) else "\n") + f"failed: {record['error']}", err=True)
 
-    result = run_batch(
-        paths,
-        outdir,
-        formats=exts,
-        settings=settings,
-        workers=workers,
-        scheduler=scheduler,
-        split=split,
-        retries=retries,
-        force=force,
-        bar=bar,
-        on_failure=on_failure,
-    )
+    try:
+        result = run_batch(
+            paths,
+            outdir,
+            formats=exts,
+            settings=settings,
+            workers=workers,
+            scheduler=scheduler,
+            split=split,
+            retries=retries,
+            force=force,
+            bar=bar,
+            on_failure=on_failure,
+        )
+    except KeyboardInterrupt:
+        click.echo(f"batch interrupted: {outdir / 'manifest.json'} records what finished; run it again to resume", err=True)
+        sys.exit(130)
     if not quiet or result.failed:
         click.echo(result.summary(), err=True)
     if result.failed:

@@ -222,17 +222,18 @@ def write_parts(
     up_axis: str | None = None,
     meters_per_unit: float | None = None,
     fields: Sequence = (),
+    surface: Surface | None = None,
     **options,
 ) -> BakeReport:
     """Stitch the ranges of :func:`bake_part` in order and write them like :func:`bake_file`.
 
     The ranges must cover the mesh's vertices exactly, in order; the files are then the
     bytes :func:`bake_file` writes with the same arguments (``seconds`` is the parts'
-    sum, their compute time).
+    sum, their compute time). ``surface``: ``source`` already loaded (not read again).
     """
     outputs = _check_outputs(output)
     placed = _load_fields(fields)
-    surface = as_surface(source)
+    surface = as_surface(source) if surface is None else surface
     expected = 0
     for part in parts:
         if part.vertices[0] != expected:
