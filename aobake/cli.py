@@ -278,6 +278,47 @@ def _method_options(method: str, given: dict) -> dict:
     return out
 
 
+def bake_options(f):
+    """--method, its options (--seed and --threads among them), --color, --up,
+    --meters-per-unit, --field and --quiet: what `bake` takes and `batch` applies to every
+    input."""
+    for decorate in reversed(_BAKE_OPTIONS):
+        f = decorate(f)
+    return f
+
+
+_BAKE_OPTIONS = [
+    click.option(
+        "--method",
+        type=click.Choice(METHODS),
+        default=METHODS[0],
+        show_default=True,
+        help="embree: ray casting (the reference); bunnell: disk and polygon form factors, no rays.",
+    ),
+    method_options,
+    click.option("--color", is_flag=True, help="Also write ao as grey vertex colours."),
+    click.option(
+        "--up", type=click.Choice(["Y", "Z"]), default=None, help="USD stage up axis [default: the input's, else Y]."
+    ),
+    click.option(
+        "--meters-per-unit",
+        type=NumberRange(min=0, min_open=True),
+        default=None,
+        help="USD metersPerUnit [default: the input's, else 1].",
+    ),
+    click.option(
+        "--field",
+        "fields",
+        multiple=True,
+        type=FieldSpec(),
+        help="An AO field (from `aobake field`) of a rigid occluder, optionally placed: "
+        "FIELD.npz@tx,ty,tz[,rx,ry,rz] (mesh units; degrees about x, then y, then z). "
+        "Repeatable; each multiplies ao by its 1 - A_k.",
+    ),
+    click.option("--quiet", "-q", is_flag=True, help="No progress bar or summary on stderr."),
+]
+
+
 @main.command()
 @click.argument("mesh", type=click.Path(path_type=Path))
 @click.option(
@@ -288,34 +329,7 @@ def _method_options(method: str, given: dict) -> dict:
     type=click.Path(path_type=Path),
     help="Output .ply, .usda, .usdc or .usd (repeat for several formats from one bake).",
 )
-@click.option(
-    "--method",
-    type=click.Choice(METHODS),
-    default=METHODS[0],
-    show_default=True,
-    help="embree: ray casting (the reference); bunnell: disk and polygon form factors, no rays.",
-)
-@method_options
-@click.option("--color", is_flag=True, help="Also write ao as grey vertex colours.")
-@click.option(
-    "--up", type=click.Choice(["Y", "Z"]), default=None, help="USD stage up axis [default: the input's, else Y]."
-)
-@click.option(
-    "--meters-per-unit",
-    type=NumberRange(min=0, min_open=True),
-    default=None,
-    help="USD metersPerUnit [default: the input's, else 1].",
-)
-@click.option(
-    "--field",
-    "fields",
-    multiple=True,
-    type=FieldSpec(),
-    help="An AO field (from `aobake field`) of a rigid occluder, optionally placed: "
-    "FIELD.npz@tx,ty,tz[,rx,ry,rz] (mesh units; degrees about x, then y, then z). "
-    "Repeatable; each multiplies ao by its 1 - A_k.",
-)
-@click.option("--quiet", "-q", is_flag=True, help="No progress bar or summary on stderr.")
+@bake_options
 def bake(mesh, output, method, color, up, meters_per_unit, fields, quiet, **given):
     """Bake AO of MESH into OUTPUT as the per-vertex attribute `ao`.
 
@@ -340,6 +354,114 @@ def bake(mesh, output, method, color, up, meters_per_unit, fields, quiet, **give
         )
     if not quiet:
         click.echo(report.summary(), err=True)
+
+
+@main.command()
+@click.argument("paths", nargs=-1, required=True)
+@click.option(
+    "-o", "--output", "outdir", required=True, type=click.Path(path_type=Path), help="Output directory (created)."
+)
+@click.option(
+    "--to",
+    "formats",
+    default="ply,usda",
+    show_default=True,
+    help="Formats written per input, comma-separated (ply, usda, usdc, usd): OUTDIR/<relative path>/<stem>.<ext>.",
+)
+@click.option(
+    "--workers", type=click.IntRange(min=1), default=None, help="Local worker processes [default: one per core]."
+)
+@click.option("--scheduler", default=None, help="Use a running Dask cluster: tcp://HOST:PORT of its scheduler.")
+@click.option(
+    "--split",
+    type=click.IntRange(min=1),
+    default=1,
+    show_default=True,
+    help="Bake each mesh as K vertex ranges on K tasks (embree only; bit-identical to an unsplit bake).",
+)
+@click.option(
+    "--retries",
+    type=click.IntRange(min=0),
+    default=2,
+    show_default=True,
+    help="Rerun an input whose worker died or failed unexpectedly this often (a bad mesh is not retried).",
+)
+@click.option("--force", is_flag=True, help="Bake every input, also those the manifest records as up to date.")
+@click.option(
+    "--emit-commands",
+    is_flag=True,
+    help="Print one `aobake bake` command per input that is not up to date instead of baking (for render farms, xargs -P).",
+)
+@bake_options
+def batch(
+    paths, outdir, formats, workers, scheduler, split, retries, force, emit_commands,
+    method, color, up, meters_per_unit, fields, quiet, **given,
+):  # fmt: skip
+    """Bake every mesh PATHS name into OUTDIR on a Dask cluster, skipping what is up to date.
+
+    PATHS: mesh files, directories (searched recursively), .txt/.lst files listing
+    paths, or glob patterns. Every `bake` option applies to every input. Runs on a local
+    cluster of worker processes by default, or on --scheduler. An input is skipped when
+    its content, the options and the aobake version match OUTDIR/manifest.json; each
+    input's status, error, vertices, rays, seconds, worker and output hashes are recorded
+    there (and in manifest.csv). Exit code 1 when any input failed.
+    """
+    from .batch import Settings, run_batch
+    from .batch import emit_commands as emit
+    from .progress import NullBatchBar, make_batch_bar
+
+    exts = tuple(e.strip().lower().lstrip(".") for e in formats.split(",") if e.strip())
+    if not exts:
+        raise click.BadParameter("give at least one format", param_hint="--to")
+    if len(set(exts)) != len(exts):
+        raise click.BadParameter(f"{formats!r} names a format twice", param_hint="--to")
+    from .methods import SPLITTABLE
+
+    if split > 1 and method not in SPLITTABLE:
+        raise click.UsageError(
+            f"--split applies to --method {'/'.join(SPLITTABLE)} only: {method} couples all vertices"
+        )
+    if emit_commands and (scheduler or workers or split > 1):
+        raise click.UsageError("--emit-commands bakes nothing: --scheduler, --workers and --split do not apply")
+    settings = Settings(
+        method=method,
+        options=_method_options(method, given),
+        color=color,
+        up_axis=up,
+        meters_per_unit=meters_per_unit,
+        fields=tuple(fields),
+    )
+    if emit_commands:
+        for line in emit(paths, outdir, formats=exts, settings=settings, force=force):
+            click.echo(line)
+        return
+
+    bar = make_batch_bar(quiet)
+
+    def on_failure(record):  # below the bar, which redraws on the next line
+        click.echo(("" if isinstance(bar, NullBatchBar) else "\n") + f"failed: {record['error']}", err=True)
+
+    try:
+        result = run_batch(
+            paths,
+            outdir,
+            formats=exts,
+            settings=settings,
+            workers=workers,
+            scheduler=scheduler,
+            split=split,
+            retries=retries,
+            force=force,
+            bar=bar,
+            on_failure=on_failure,
+        )
+    except KeyboardInterrupt:
+        click.echo(f"batch interrupted: {outdir / 'manifest.json'} records what finished; run it again to resume", err=True)
+        sys.exit(130)
+    if not quiet or result.failed:
+        click.echo(result.summary(), err=True)
+    if result.failed:
+        sys.exit(1)
 
 
 def _field_options(f):

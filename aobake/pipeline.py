@@ -170,8 +170,97 @@ def bake_file(
     -------
     BakeReport
     """
-    from .io import atomic_write, write_bake
+    outputs = _check_outputs(output, source)
+    placed = _load_fields(fields)
+    surface = as_surface(source)
+    part = _bake_range(surface, method, options, progress, None)
+    return _write(source, surface, outputs, [part], method, options, placed, color, up_axis, meters_per_unit)
 
+
+@dataclass(frozen=True)
+class PartResult:
+    """AO of a vertex range of one mesh (:func:`bake_part`), to be stitched by :func:`write_parts`.
+
+    Attributes
+    ----------
+    vertices : (int, int)
+        The range lo..hi-1.
+    ao : (hi - lo,) float64
+    n_rays, contacts : int
+        Rays cast in the range; contact vertices of the whole mesh.
+    seconds : float
+        Compute time of the range (scene build included, compiling kernels not).
+    compile_seconds : float
+        Time spent compiling kernels (a cold numba cache), first run only.
+    """
+
+    vertices: tuple
+    ao: Any
+    n_rays: int
+    contacts: int
+    seconds: float
+    compile_seconds: float = 0.0
+
+
+def bake_part(
+    source: Any,
+    *,
+    method: str = "embree",
+    vertices: tuple[int, int] | None = None,
+    parts: tuple[int, int] | None = None,
+    progress: Progress | None = None,
+    **options,
+) -> PartResult:
+    """Bake one vertex range of ``source`` (a path or a surface) against the whole mesh.
+
+    Give the range as ``vertices=(lo, hi)`` or as ``parts=(k, K)``: the k-th of K equal
+    ranges (computed once the mesh is loaded). Only methods in
+    :data:`aobake.methods.SPLITTABLE` bake ranges; a range of the whole mesh
+    (``vertices=None, parts=None``) works for every method.
+    """
+    surface = as_surface(source)
+    if parts is not None:
+        k, count = parts
+        n = surface.n_vertices
+        vertices = (n * k // count, n * (k + 1) // count)
+    return _bake_range(surface, method, options, progress, vertices)
+
+
+def write_parts(
+    source: str | Path,
+    output: str | Path | Sequence[str | Path],
+    parts: Sequence[PartResult],
+    *,
+    method: str = "embree",
+    color: bool = False,
+    up_axis: str | None = None,
+    meters_per_unit: float | None = None,
+    fields: Sequence = (),
+    surface: Surface | None = None,
+    **options,
+) -> BakeReport:
+    """Stitch the ranges of :func:`bake_part` in order and write them like :func:`bake_file`.
+
+    The ranges must cover the mesh's vertices exactly, in order; the files are then the
+    bytes :func:`bake_file` writes with the same arguments (``seconds`` is the parts'
+    sum, their compute time). ``surface``: ``source`` already loaded (not read again).
+    """
+    outputs = _check_outputs(output, source)
+    placed = _load_fields(fields)
+    surface = as_surface(source) if surface is None else surface
+    expected = 0
+    for part in parts:
+        if part.vertices[0] != expected:
+            raise ValueError(f"parts do not cover the vertices in order: {part.vertices} after {expected}")
+        expected = part.vertices[1]
+    if expected != surface.n_vertices:
+        raise ValueError(f"parts cover {expected} of {surface.n_vertices} vertices")
+    return _write(source, surface, outputs, parts, method, options, placed, color, up_axis, meters_per_unit)
+
+
+def _check_outputs(output, source) -> list[Path]:
+    """Output paths, with suffixes and directories checked before any work (none may be
+    the input)."""
     outputs = [Path(output)] if isinstance(output, (str, Path)) else [Path(o) for o in output]
     if not outputs:
         raise ValueError("no output path given")
@@ -179,17 +268,42 @@ def bake_file(
         output_kind(path)
         check_output_dir(path)
         check_not_input(path, [source])
-    placed = _load_fields(fields)
-    surface = as_surface(source)
-    # compiling kernels (a cold numba cache) is kept out of both times
+    return outputs
+
+
+def _bake_range(surface: Surface, method: str, options: dict, progress, vertices) -> PartResult:
+    """Run ``method`` on ``vertices`` (None: all); compiling kernels is kept out of the time."""
+    from .methods import run
+
     with CompileWatch() as watch:
         t0 = time.perf_counter()
-        ao, n_rays, contacts = _compute(surface, method, options, progress)
+        try:
+            if vertices is None:  # the whole mesh: every method
+                result = run(method, surface, options, progress)
+            else:
+                result = run(method, surface, options, progress, vertices=vertices)
+        except NumericalError as exc:  # a method's own message, named after the file
+            name = Path(surface.source).name
+            if str(exc).startswith(f"{name}:"):
+                raise
+            raise NumericalError(f"{name}: {exc}") from None
         seconds = time.perf_counter() - t0 - watch.seconds
-        skipped: tuple = ()
+    lo, hi = (0, surface.n_vertices) if vertices is None else vertices
+    return PartResult((lo, hi), result.ao, result.n_rays, result.contacts, seconds, watch.seconds)
+
+
+def _write(source, surface, outputs, parts, method, options, placed, color, up_axis, meters_per_unit) -> BakeReport:
+    """Fields applied, checks, every output written atomically (all or none)."""
+    from .io import atomic_write, write_bake
+
+    ao = parts[0].ao if len(parts) == 1 else np.concatenate([p.ao for p in parts])
+    seconds = sum(p.seconds for p in parts)
+    skipped: tuple = ()
+    with CompileWatch() as watch:
+        t0 = time.perf_counter()
         if placed:
             ao, skipped = _apply_fields(surface, ao, placed, options.get("threads"))
-        field_seconds = time.perf_counter() - t0 - seconds - watch.seconds
+        field_seconds = time.perf_counter() - t0 - watch.seconds
     if ao.shape != (surface.n_vertices,):
         raise NumericalError(f"{surface.source}: {method} returned {ao.shape} values for {surface.n_vertices} vertices")
     custom = {"method": method, "version": __version__, "source": Path(str(source)).name}
@@ -217,13 +331,13 @@ def bake_file(
         output=", ".join(str(p) for p in outputs),
         method=method,
         n_vertices=surface.n_vertices,
-        n_rays=n_rays,
+        n_rays=sum(p.n_rays for p in parts),
         seconds=seconds,
-        contacts=contacts,
+        contacts=parts[0].contacts,
         options=dict(options),
         field_skipped=skipped,
         field_seconds=field_seconds if placed else 0.0,
-        compile_seconds=watch.seconds,
+        compile_seconds=watch.seconds + sum(p.compile_seconds for p in parts),
     )
 
 

@@ -208,3 +208,72 @@ def make_progress(quiet: bool, stream: TextIO | None = None) -> Progress:
     if quiet or not getattr(stream, "isatty", lambda: False)():
         return NullProgress()
     return StderrProgress(stream)
+
+
+class NullBatchBar:
+    """Draws nothing (``aobake batch --quiet``, no terminal, Python callers)."""
+
+    def start(self, total: int) -> None:
+        pass
+
+    def update(self, done: int, failed: int, skipped: int) -> None:
+        pass
+
+    def finish(self) -> None:
+        pass
+
+
+class BatchBar:
+    """A one-line bar over the inputs of a batch: done / failed / skipped and ETA (from the
+    rate of inputs baked this run), redrawn at most ten times a second."""
+
+    def __init__(self, stream: TextIO | None = None, width: int = 30):
+        self.stream = sys.stderr if stream is None else stream
+        self.width = width
+        self.total = 1
+        self.counts = (0, 0, 0)
+        self.t0 = self._last = 0.0
+
+    def start(self, total: int) -> None:
+        self.total = max(int(total), 1)
+        self.t0 = time.perf_counter()
+        self._last = 0.0
+
+    def update(self, done: int, failed: int, skipped: int) -> None:
+        self.counts = (done, failed, skipped)
+        now = time.perf_counter()
+        if now - self._last >= 0.1 or sum(self.counts) == self.total:
+            self._last = now
+            self._draw()
+
+    def finish(self) -> None:
+        self._draw()
+        self.stream.write("\n")
+        self.stream.flush()
+
+    def text(self) -> str:
+        done, failed, skipped = self.counts
+        finished = done + failed + skipped
+        elapsed = time.perf_counter() - self.t0
+        baked = done + failed
+        left = self.total - finished
+        eta = elapsed * left / baked if baked else float("nan")
+        filled = int(self.width * finished / self.total)
+        bar = "#" * filled + "-" * (self.width - filled)
+        eta_text = f"{eta:6.1f}s" if eta == eta else "     ?"
+        return (
+            f"batch [{bar}] {finished}/{self.total}: {done} done, {failed} failed, {skipped} skipped,"
+            f" {elapsed:6.1f}s eta {eta_text}"
+        )
+
+    def _draw(self) -> None:
+        self.stream.write("\r" + self.text())
+        self.stream.flush()
+
+
+def make_batch_bar(quiet: bool, stream: TextIO | None = None):
+    """A :class:`BatchBar` on stderr when it is a terminal and not ``quiet``, else none."""
+    stream = sys.stderr if stream is None else stream
+    if quiet or not getattr(stream, "isatty", lambda: False)():
+        return NullBatchBar()
+    return BatchBar(stream)

@@ -153,9 +153,14 @@ def embree_ao(
     return estimate(surface, build(EmbreeOptions, options, **changes), progress)
 
 
-def run(surface: Surface, options: EmbreeOptions, progress: Progress | None = None) -> MethodResult:
-    """The method interface (:mod:`aobake.methods`)."""
-    result = estimate(surface, options, progress)
+def run(
+    surface: Surface,
+    options: EmbreeOptions,
+    progress: Progress | None = None,
+    vertices: tuple[int, int] | None = None,
+) -> MethodResult:
+    """The method interface (:mod:`aobake.methods`); ``vertices``: see :func:`estimate`."""
+    result = estimate(surface, options, progress, vertices=vertices)
     return MethodResult(result.ao, result.n_rays, result.contacts)
 
 
@@ -167,17 +172,26 @@ def estimate(
     chunk_rays: int = CHUNK_RAYS,
     stratified: bool = True,
     contact_fix: bool = True,
+    vertices: tuple[int, int] | None = None,
 ) -> EmbreeAO:
     """:func:`embree_ao` with the knobs tests and the bench turn: ``chunk_rays`` rays per
     Embree call at most (memory; no effect on the result), ``stratified=False`` plain
     random numbers instead of the scrambled Sobol points, ``contact_fix=False`` plain
-    offset origins (the classic bug, :func:`aobake.contacts.contact_origins`)."""
+    offset origins (the classic bug, :func:`aobake.contacts.contact_origins`).
+
+    ``vertices=(lo, hi)``: trace only vertices lo..hi-1 against the whole scene and
+    return their results alone (``ao`` and ``rays`` of length hi - lo). Every ray is a
+    pure function of (seed, vertex, sample), so the pieces of a mesh, concatenated,
+    equal the whole bake bit for bit (``aobake batch --split``)."""
     t0 = time.perf_counter()
     n_rays = options.n_rays
     threads = max(1, int(options.threads or os.cpu_count() or 1))
     progress = progress or NullProgress()
 
     n = surface.n_vertices
+    lo, hi = (0, n) if vertices is None else (int(vertices[0]), int(vertices[1]))
+    if not 0 <= lo <= hi <= n:
+        raise ValueError(f"vertex range ({lo}, {hi}) is not within the mesh's {n} vertices")
     tracer = Tracer(surface.positions, surface.faces)
     edges = _topo.longest_edges(surface.positions, surface.faces)
     offsets = ray_offsets(surface, tracer.magnitude, options.bias, edges)
@@ -193,8 +207,8 @@ def estimate(
 
     hits = np.zeros(n, dtype=np.int64)
     cast = np.zeros(n, dtype=np.int64)
-    active = np.arange(n, dtype=np.int64)
-    progress.start(n * n_rays, "embree")
+    active = np.arange(lo, hi, dtype=np.int64)
+    progress.start(active.size * n_rays, "embree")
 
     lock = threading.Lock()
 
@@ -235,6 +249,7 @@ def estimate(
         pool.shutdown(wait=True, cancel_futures=True)
     progress.finish()
 
+    hits, cast = hits[lo:hi], cast[lo:hi]
     denom = np.maximum(cast, 1)
     ao = 1.0 - hits / denom
     if not np.isfinite(ao).all() or ao.min() < 0.0 or ao.max() > 1.0:
