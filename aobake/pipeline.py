@@ -93,11 +93,16 @@ def as_surface(mesh: Any) -> Surface:
     return mesh_from_trimesh(mesh)
 
 
-def _compute(surface: Surface, method: str, options: dict, progress: Progress | None):
+def _compute(surface: Surface, method: str, options: dict, progress: Progress | None, vertices=None):
+    """``(ao, n_rays, contacts)`` of ``method`` on ``vertices`` (None: all), a method's
+    numerical error named after the file."""
     from .methods import run
 
     try:
-        result = run(method, surface, options, progress)
+        if vertices is None:  # the whole mesh: every method
+            result = run(method, surface, options, progress)
+        else:
+            result = run(method, surface, options, progress, vertices=vertices)
     except NumericalError as exc:  # a method's own message, named after the file
         name = Path(surface.source).name
         if str(exc).startswith(f"{name}:"):
@@ -273,23 +278,12 @@ def _check_outputs(output, source) -> list[Path]:
 
 def _bake_range(surface: Surface, method: str, options: dict, progress, vertices) -> PartResult:
     """Run ``method`` on ``vertices`` (None: all); compiling kernels is kept out of the time."""
-    from .methods import run
-
     with CompileWatch() as watch:
         t0 = time.perf_counter()
-        try:
-            if vertices is None:  # the whole mesh: every method
-                result = run(method, surface, options, progress)
-            else:
-                result = run(method, surface, options, progress, vertices=vertices)
-        except NumericalError as exc:  # a method's own message, named after the file
-            name = Path(surface.source).name
-            if str(exc).startswith(f"{name}:"):
-                raise
-            raise NumericalError(f"{name}: {exc}") from None
+        ao, n_rays, contacts = _compute(surface, method, options, progress, vertices)
         seconds = time.perf_counter() - t0 - watch.seconds
     lo, hi = (0, surface.n_vertices) if vertices is None else vertices
-    return PartResult((lo, hi), result.ao, result.n_rays, result.contacts, seconds, watch.seconds)
+    return PartResult((lo, hi), ao, n_rays, contacts, seconds, watch.seconds)
 
 
 def _write(source, surface, outputs, parts, method, options, placed, color, up_axis, meters_per_unit) -> BakeReport:
