@@ -227,7 +227,18 @@ def _method_options(method: str, given: dict, common: dict) -> dict:
     help="embree: ray casting (the reference); bunnell: disk and polygon form factors, no rays.",
 )
 @method_options
-@click.option("--color", is_flag=True, help="Also write ao as grey vertex colours.")
+@click.option(
+    "--color", is_flag=True, help="Also write ao as grey vertex colours (sRGB bytes in PLY, linear in USD and glTF)."
+)
+@click.option(
+    "--channel",
+    type=click.Choice(["R", "G", "B", "A"]),
+    default=None,
+    help="Write ao (linear) into this channel of the input's vertex colours, keeping the others (PLY, glTF).",
+)
+@click.option(
+    "--weld", is_flag=True, help="Bake with coincident vertices merged (STL soups, split seams); written per input vertex."
+)
 @click.option(
     "--up", type=click.Choice(["Y", "Z"]), default=None, help="USD stage up axis [default: the input's, else Y]."
 )
@@ -247,7 +258,7 @@ def _method_options(method: str, given: dict, common: dict) -> dict:
     "Repeatable; each multiplies ao by its 1 - A_k.",
 )
 @common_options
-def bake(mesh, output, method, color, up, meters_per_unit, fields, seed, threads, quiet, **given):
+def bake(mesh, output, method, color, channel, weld, up, meters_per_unit, fields, seed, threads, quiet, **given):
     """Bake AO of MESH into OUTPUT as the per-vertex attribute `ao`.
 
     `ao` = 1 - A: 1 = fully open, 0 = fully occluded. MESH: PLY, OBJ, STL, OFF,
@@ -257,11 +268,15 @@ def bake(mesh, output, method, color, up, meters_per_unit, fields, seed, threads
     from .pipeline import bake_file
     from .progress import make_progress
 
+    if color and channel:
+        raise click.UsageError("--color and --channel both write the vertex colours; give one")
     report = bake_file(
         mesh,
         output,
         method=method,
         color=color,
+        channel=channel,
+        weld=weld,
         up_axis=up,
         meters_per_unit=meters_per_unit,
         progress=make_progress(quiet),

@@ -138,6 +138,8 @@ def bake_file(
     meters_per_unit: float | None = None,
     progress: Progress | None = None,
     fields: Sequence = (),
+    channel: str | None = None,
+    weld: bool = False,
     **options,
 ) -> BakeReport:
     """Load ``source``, bake it once, write ``output`` (.ply, .usda, .usdc or .usd) atomically.
@@ -155,6 +157,11 @@ def bake_file(
     before computing; the mesh's own AO from ``method`` is multiplied by every
     field's 1 - A_k (:func:`~aobake.methods.fields.fields_ao`).
 
+    ``channel`` (``"R"``, ``"G"``, ``"B"``, ``"A"``): write ``ao`` into that channel of
+    the input's vertex colours (PLY and glTF), other channels kept. ``weld``: bake the
+    mesh with coincident vertices of each part merged
+    (:func:`aobake.mesh.weld_vertices`), written back per input vertex.
+
     Returns
     -------
     BakeReport
@@ -170,7 +177,14 @@ def bake_file(
     placed = _load_fields(fields)
     surface = as_surface(source)
     t0 = time.perf_counter()
-    ao, n_rays, contacts = _compute(surface, method, options, progress)
+    if weld:
+        from .mesh import weld_vertices
+
+        welded, inverse = weld_vertices(surface)
+        ao, n_rays, contacts = _compute(welded, method, options, progress)
+        ao = np.asarray(ao)[inverse]
+    else:
+        ao, n_rays, contacts = _compute(surface, method, options, progress)
     seconds = time.perf_counter() - t0
     skipped: tuple = ()
     if placed:
@@ -182,6 +196,10 @@ def bake_file(
     custom.update({k: ("none" if v is None else v) for k, v in options.items() if k not in ("threads", "chunk_rays")})
     if placed:
         custom["fields"] = [name for _, _, name in placed]
+    if weld:
+        custom["weld"] = True
+    if channel is not None:
+        custom["channel"] = channel
     # Stage metrics: what the caller says, else what the input said (USD, glTF), else
     # the documented defaults. An unauthored metersPerUnit would mean centimetres.
     meta = surface.metadata
@@ -194,6 +212,7 @@ def bake_file(
                 surface,
                 np.asarray(ao),
                 color=color,
+                channel=channel,
                 custom_data=custom,
                 up_axis=up_axis or meta.get("up_axis") or DEFAULT_UP_AXIS,
                 meters_per_unit=meters_per_unit or meta.get("meters_per_unit") or DEFAULT_METERS_PER_UNIT,

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError
+from ..errors import FormatError, InputError
 from ..mesh import Surface, assemble_surface
 from . import obj, ply, trimesh_formats, usd
 from .common import (
@@ -23,7 +23,7 @@ from .common import (
     output_kind,
     short_reason,
 )
-from .ply import read_ao_ply, write_ply
+from .ply import read_ao_ply, write_kept_ply, write_ply
 from .usd import read_ao_usd, write_usd
 
 __all__ = [
@@ -118,7 +118,7 @@ def load_mesh(path: str | Path) -> Surface:
             if fmt == "OBJ":
                 raw = obj.read_parts(path, data)
             elif fmt == "PLY":
-                raw = ply.read_parts(path, data)
+                raw = ply.read_parts(path, data, metadata)
             else:
                 raw = trimesh_formats.read_parts(path, data, fmt, metadata)
     except InputError:
@@ -150,13 +150,17 @@ def write_bake(
     up_axis: str = "Y",
     meters_per_unit: float = 1.0,
     custom_data: Mapping[str, str | float | int | bool] | None = None,
+    channel: str | None = None,
 ) -> None:
     """Write a baked surface to ``path``, choosing PLY or USD from its suffix.
 
-    PLY gets the whole surface concatenated (positions, triangles, normals, ``ao``)
-    with ``custom_data`` as ``comment aobake <key>=<value>`` header lines; PLY has no
-    up axis or unit, so ``up_axis`` and ``meters_per_unit`` apply to USD only. USD gets
-    one mesh per part with its original polygons (see :func:`aobake.io.usd.write_usd`).
+    PLY: a PLY input is written back whole with ``ao`` added
+    (:func:`aobake.io.ply.write_kept_ply`: every element and property kept); other
+    inputs as the whole surface concatenated (positions, triangles, normals, ``ao``).
+    ``custom_data`` becomes ``comment aobake <key>=<value>`` header lines, and
+    ``up_axis`` and ``meters_per_unit`` are recorded the same way (PLY has no field for
+    them; :func:`load_mesh` reads them back). USD gets one mesh per part with its
+    original polygons (see :func:`aobake.io.usd.write_usd`).
 
     Parameters
     ----------
@@ -168,13 +172,17 @@ def write_bake(
     ao : (n,) float in [0, 1]
         Accessibility 1 - A (1 = fully open), one value per surface vertex.
     color : bool
-        Also write ``ao`` as grey vertex colours.
+        Also write ``ao`` as grey vertex colours (sRGB bytes in PLY, linear elsewhere:
+        :mod:`aobake.io.color`).
     up_axis : {"Y", "Z"}
-        USD stage ``upAxis``.
+        USD stage ``upAxis``, recorded in PLY comments.
     meters_per_unit : float
         USD stage ``metersPerUnit``.
     custom_data : mapping of str to str, float, int or bool, optional
         Provenance (method, parameters, seed, version).
+    channel : {"R", "G", "B", "A"}, optional
+        Write ``ao`` (linear) into this channel of the input's own vertex colours,
+        keeping the other channels; an input without colours is an InputError.
 
     Raises
     ------
@@ -187,9 +195,14 @@ def write_bake(
         From the writer (bad topology, unwritable directory, bad options).
     """
     if output_kind(path) == "ply":
-        comments = (
-            [] if custom_data is None else [f"aobake {k}={v}" for k, v in dict(custom_data).items()]
-        )
+        comments = [] if custom_data is None else [f"aobake {k}={v}" for k, v in dict(custom_data).items()]
+        comments += [f"aobake up_axis={up_axis}", f"aobake meters_per_unit={meters_per_unit:g}"]
+        kept = surface.metadata.get("ply")
+        if kept is not None and kept.data.elements["vertex"].count == surface.n_vertices:
+            write_kept_ply(path, kept, ao, color=color, channel=channel, comments=comments, source=surface.source)
+            return
+        if channel is not None:
+            raise InputError(surface.source, f"--channel {channel}: the mesh has no vertex colours to write into")
         write_ply(
             path,
             surface.positions,
@@ -200,6 +213,8 @@ def write_bake(
             comments=comments,
         )
     else:
+        if channel is not None:
+            raise FormatError(f"{Path(path).name}: --channel is not written to USD (use PLY or glTF output)")
         write_usd(
             path,
             surface,
