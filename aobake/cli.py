@@ -217,7 +217,7 @@ def _method_options(method: str, given: dict, common: dict) -> dict:
     required=True,
     multiple=True,
     type=click.Path(path_type=Path),
-    help="Output .ply, .usda, .usdc or .usd (repeat for several formats from one bake).",
+    help="Output .ply, .usda, .usdc, .usd, .gltf or .glb (repeat for several formats from one bake).",
 )
 @click.option(
     "--method",

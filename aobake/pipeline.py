@@ -142,7 +142,8 @@ def bake_file(
     weld: bool = False,
     **options,
 ) -> BakeReport:
-    """Load ``source``, bake it once, write ``output`` (.ply, .usda, .usdc or .usd) atomically.
+    """Load ``source``, bake it once, write ``output`` (.ply, .usda, .usdc, .usd, .gltf or
+    .glb) atomically.
 
     ``output`` may be several paths (one bake, several formats). Suffixes and
     directories are checked before loading or computing, so a typo fails at once;
@@ -176,6 +177,9 @@ def bake_file(
         check_output_dir(path)
     placed = _load_fields(fields)
     surface = as_surface(source)
+    from .io import check_channel
+
+    check_channel(surface, outputs, channel)
     t0 = time.perf_counter()
     if weld:
         from .mesh import weld_vertices

@@ -14,7 +14,7 @@ import numpy as np
 
 from ..errors import FormatError, InputError
 from ..mesh import Surface, assemble_surface
-from . import obj, ply, trimesh_formats, usd
+from . import gltf, obj, ply, trimesh_formats, usd
 from .common import (
     BAKE_SUFFIXES,
     atomic_write,
@@ -32,6 +32,7 @@ __all__ = [
     "READ_SUFFIXES",
     "atomic_write",
     "check_ao",
+    "check_channel",
     "check_output_dir",
     "load_mesh",
     "output_kind",
@@ -152,7 +153,10 @@ def write_bake(
     custom_data: Mapping[str, str | float | int | bool] | None = None,
     channel: str | None = None,
 ) -> None:
-    """Write a baked surface to ``path``, choosing PLY or USD from its suffix.
+    """Write a baked surface to ``path``, choosing PLY, USD or glTF from its suffix.
+
+    glTF (``.gltf``/``.glb``): a glTF input's own document with ``_AO`` per primitive,
+    else a new document of the parts (:func:`aobake.io.gltf.write_gltf`).
 
     PLY: a PLY input is written back whole with ``ao`` added
     (:func:`aobake.io.ply.write_kept_ply`: every element and property kept); other
@@ -165,7 +169,7 @@ def write_bake(
     Parameters
     ----------
     path : str or Path
-        ``.ply``, ``.usda``, ``.usdc`` or ``.usd``; written atomically.
+        ``.ply``, ``.usda``, ``.usdc``, ``.usd``, ``.gltf`` or ``.glb``; written atomically.
     surface : aobake.mesh.Surface
         ``positions (n, 3) float64``, ``faces (m, 3) int64``, ``normals (n, 3) float64``
         and ``parts``.
@@ -194,7 +198,20 @@ def write_bake(
     InputError, OutputError, ValueError
         From the writer (bad topology, unwritable directory, bad options).
     """
-    if output_kind(path) == "ply":
+    kind = output_kind(path)
+    if kind == "gltf":
+        gltf.write_gltf(
+            path,
+            surface,
+            ao,
+            color=color,
+            channel=channel,
+            up_axis=up_axis,
+            meters_per_unit=meters_per_unit,
+            custom_data=None if custom_data is None else dict(custom_data),
+        )
+        return
+    if kind == "ply":
         comments = [] if custom_data is None else [f"aobake {k}={v}" for k, v in dict(custom_data).items()]
         comments += [f"aobake up_axis={up_axis}", f"aobake meters_per_unit={meters_per_unit:g}"]
         kept = surface.metadata.get("ply")
@@ -224,6 +241,25 @@ def write_bake(
             meters_per_unit=meters_per_unit,
             custom_data=custom_data,
         )
+
+
+def check_channel(surface: Surface, outputs, channel: str | None) -> None:
+    """Refuse ``--channel`` before baking when an output cannot take it: USD output, or
+    an input without vertex colours (PLY ``red green blue``, glTF ``COLOR_0``)."""
+    if channel is None:
+        return
+    for path in outputs:
+        kind = output_kind(path)
+        if kind == "usd":
+            raise FormatError(f"{Path(path).name}: --channel is not written to USD (use PLY or glTF output)")
+        kept = surface.metadata.get("ply")
+        if kind == "ply" and kept is not None:
+            if ply.vertex_colors(kept) is None:
+                raise InputError(surface.source, f"--channel {channel}: the mesh has no vertex colours (red green blue)")
+        elif kind == "gltf" and surface.metadata.get("gltf_path"):
+            gltf.check_channel(gltf.read_document(surface.metadata["gltf_path"]), channel)
+        else:
+            raise InputError(surface.source, f"--channel {channel}: the mesh has no vertex colours to write into")
 
 
 def read_bake(path: str | Path, *, n_vertices: int | None = None) -> np.ndarray:
