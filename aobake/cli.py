@@ -328,7 +328,7 @@ def field_command(occluder, output, quiet, **options):
 )
 @click.option("--up", type=click.Choice(["Y", "Z"]), default=None, help="Up axis for --render [default: the file's, else Y].")
 def compare(reference, candidate, threshold, worst, json_path, plot_path, render_path, up):
-    """Error report of CANDIDATE against REFERENCE (bakes of one mesh: PLY, USD or .npy).
+    """Error report of CANDIDATE against REFERENCE (bakes of one mesh: PLY, USD, glTF or .npy).
 
     Prints RMSE, MAE, bias, max and p50/p95/p99 of |error| (error = candidate -
     reference, on `ao` = 1 - A), the share of vertices above --threshold and the worst
@@ -407,7 +407,7 @@ def sweep(mesh, out_dir, reference_rays, repeats, no_plot, no_fields, up, seed, 
 @click.option("--size", type=click.IntRange(16, 8192), default=640, show_default=True, help="Image side in pixels.")
 @click.option("--up", type=click.Choice(["Y", "Z"]), default=None, help="Up axis [default: the file's, else Y].")
 def preview(bake, output, view, azimuth, elevation, size, up):
-    """Render BAKE (a PLY or USD file with `ao`) to a PNG: AO as grey, white = open."""
+    """Render BAKE (a PLY, USD or glTF file with `ao`) to a PNG: AO as grey, white = open."""
     from .pipeline import preview_file
 
     preview_file(bake, output, size=size, up=up, view=view, azimuth=azimuth, elevation=elevation)

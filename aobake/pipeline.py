@@ -246,7 +246,7 @@ def compare_files(
     render_path: str | Path | None = None,
     up: str | None = None,
 ):
-    """Compare two bakes of the same mesh (PLY, USD or ``.npy``); ``reference`` is "a".
+    """Compare two bakes of the same mesh (PLY, USD, glTF or ``.npy``); ``reference`` is "a".
 
     Worst-vertex positions come from whichever file is a mesh. ``json_path`` and
     ``plot_path`` (PNG, needs matplotlib) are written atomically; their suffixes and
@@ -380,7 +380,7 @@ def preview_file(
     azimuth: float | None = None,
     elevation: float | None = None,
 ) -> None:
-    """Render a bake (a mesh file carrying ``ao``: PLY or USD) to a PNG, AO as grey."""
+    """Render a bake (a mesh file carrying ``ao``: PLY, USD or glTF) to a PNG, AO as grey."""
     from .io import load_mesh, read_bake
     from .tools.preview import grey, render_values, write_png
 
@@ -404,7 +404,7 @@ def render_comparison(reference, candidate, output, *, size: int = 480, up: str 
 
     mesh_path = next((p for p in (reference, candidate) if Path(p).suffix.lower() != ".npy"), None)
     if mesh_path is None:
-        raise FormatError(f"{Path(output).name}: rendering needs at least one bake that is a mesh (PLY or USD)")
+        raise FormatError(f"{Path(output).name}: rendering needs at least one bake that is a mesh (PLY, USD or glTF)")
     surface = load_mesh(mesh_path)
     a = read_bake(reference, n_vertices=surface.n_vertices)
     b = read_bake(candidate, n_vertices=surface.n_vertices)

@@ -226,3 +226,15 @@ def test_ply_to_gltf_via_cli_and_deterministic(tmp_path):
     assert (tmp_path / "o1.gltf").read_bytes() == (tmp_path / "o2.gltf").read_bytes()
     gl, blobs = ga.load(tmp_path / "o1.gltf")
     np.testing.assert_array_equal(ga.accessor(gl, blobs, gl["meshes"][0]["primitives"][0]["attributes"]["_AO"]), 1.0)
+
+
+def test_read_bake_compare_and_preview_take_gltf(baked, tmp_path):
+    d, ref, _ = baked
+    for name in ("glb.glb", "gltf.gltf"):
+        np.testing.assert_array_equal(read_bake(d / "out" / name), ref.astype(np.float32))
+    result = CliRunner().invoke(main, ["compare", str(d / "out" / "ref.ply"), str(d / "out" / "glb.glb")])
+    assert result.exit_code == 0 and "RMSE" in result.output and "0.000000" in result.output
+    result = CliRunner().invoke(main, ["preview", str(d / "out" / "glb.glb"), "-o", str(tmp_path / "p.png"), "--size", "32"])
+    assert result.exit_code == 0 and (tmp_path / "p.png").read_bytes()[:4] == b"\x89PNG"
+    with pytest.raises(InputError, match="s.glb: node 'ground' has a primitive without _AO"):
+        read_bake(ga.write_scene(tmp_path / "s.glb"))

@@ -224,3 +224,21 @@ def test_weld_equals_the_bake_of_the_welded_mesh(tmp_path):
     assert got.shape == (len(positions),)
     np.testing.assert_array_equal(got, ref[inverse])
     assert ref.min() < 0.9  # the ground under the sphere is occluded: not a trivial bake
+
+
+def test_weld_and_color_reach_every_output_format(tmp_path):
+    import trimesh
+
+    positions, faces = _soup()
+    trimesh.Trimesh(positions, faces, process=False).export(tmp_path / "soup.stl")
+    outputs = [tmp_path / "o.ply", tmp_path / "o.usda", tmp_path / "o.glb", tmp_path / "o.gltf"]
+    bake_file(tmp_path / "soup.stl", outputs, weld=True, color=True, n_rays=16, seed=1, threads=1)
+    values = [read_bake(p) for p in outputs]
+    for v in values[1:]:
+        np.testing.assert_array_equal(v, values[0])
+    # the copies of a welded vertex carry one value
+    _, inverse = np.unique(positions.astype(np.float32), axis=0, return_inverse=True)
+    inverse = inverse.reshape(-1)
+    for k in range(inverse.max() + 1):
+        assert np.ptp(values[0][inverse == k]) == 0
+    assert np.unique(inverse).size < len(positions) / 4

@@ -138,6 +138,8 @@ READ_SUFFIXES = {
     ".usda": "usd",
     ".usdc": "usd",
     ".usdz": "usd",
+    ".glb": "gltf",
+    ".gltf": "gltf",
     ".npy": "npy",
 }
 
@@ -263,7 +265,8 @@ def check_channel(surface: Surface, outputs, channel: str | None) -> None:
 
 
 def read_bake(path: str | Path, *, n_vertices: int | None = None) -> np.ndarray:
-    """Read per-vertex ``ao`` from a ``.ply``, ``.usd``/``.usda``/``.usdc``/``.usdz`` or ``.npy``.
+    """Read per-vertex ``ao`` from a ``.ply``, ``.usd``/``.usda``/``.usdc``/``.usdz``,
+    ``.glb``/``.gltf`` (``_AO``) or ``.npy``.
 
     Parameters
     ----------
@@ -276,7 +279,8 @@ def read_bake(path: str | Path, *, n_vertices: int | None = None) -> np.ndarray:
     Returns
     -------
     ao : (n,) float64
-        One value per vertex, in file order (USD: all meshes in traversal order).
+        One value per vertex, in file order (USD: all meshes in traversal order; glTF:
+        ``_AO`` of the primitives in scene order).
 
     Raises
     ------
@@ -295,6 +299,8 @@ def read_bake(path: str | Path, *, n_vertices: int | None = None) -> np.ndarray:
         ao = read_ao_ply(path)
     elif kind == "usd":
         ao = read_ao_usd(path)
+    elif kind == "gltf":
+        ao = gltf.read_ao_gltf(path)
     else:
         ao = _read_npy(path)
     if n_vertices is not None and ao.shape[0] != n_vertices:

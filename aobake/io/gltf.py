@@ -213,6 +213,34 @@ def match_parts(doc: Document, surface) -> list[tuple[Slot, object]]:
     return pairs
 
 
+def read_ao_gltf(path: str | Path) -> np.ndarray:
+    """The ``_AO`` of every triangle primitive of the default scene, in the order
+    :func:`aobake.io.load_mesh` gives the parts (float64, one value per vertex).
+
+    Raises
+    ------
+    InputError
+        Unreadable file, or a triangle primitive without ``_AO``.
+    """
+    path = Path(path)
+    try:
+        doc = read_document(path)
+        slots = scene_slots(doc)
+    except InputError:
+        raise
+    except (OSError, ValueError, KeyError, IndexError, TypeError) as exc:
+        raise InputError(path, f"cannot read as glTF: {exc}") from exc
+    values = []
+    for slot in slots:
+        attributes = doc.json["meshes"][slot.mesh]["primitives"][slot.primitive]["attributes"]
+        if "_AO" not in attributes:
+            name = doc.json["nodes"][slot.node].get("name", slot.node)
+            raise InputError(path, f"node {name!r} has a primitive without _AO")
+        a = attributes["_AO"]
+        values.append(as_float(accessor_values(doc, a), doc.json["accessors"][a].get("normalized", False))[:, 0])
+    return np.concatenate(values) if values else np.zeros(0)
+
+
 def check_channel(doc: Document, channel: str) -> None:
     """Raise :class:`InputError` unless every triangle primitive has ``COLOR_0``."""
     bare = {(s.mesh, s.primitive) for s in scene_slots(doc) if "COLOR_0" not in
