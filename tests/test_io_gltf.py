@@ -14,7 +14,7 @@ import trimesh
 from click.testing import CliRunner
 
 from aobake.cli import main
-from aobake.errors import InputError
+from aobake.errors import InputError, OutputError
 from aobake.io import load_mesh, read_bake, write_bake
 from aobake.pipeline import bake_file
 from aobake.testing import scenes
@@ -238,3 +238,52 @@ def test_read_bake_compare_and_preview_take_gltf(baked, tmp_path):
     assert result.exit_code == 0 and (tmp_path / "p.png").read_bytes()[:4] == b"\x89PNG"
     with pytest.raises(InputError, match="s.glb: node 'ground' has a primitive without _AO"):
         read_bake(ga.write_scene(tmp_path / "s.glb"))
+
+
+def test_interleaved_attributes_and_strips(tmp_path):
+    """POSITION and NORMAL interleaved in one strided view, the box drawn as a triangle
+    strip: found, baked, and left as they were."""
+    gl, data = ga.scene_document()
+    p = ga.accessor(gl, [data], gl["meshes"][0]["primitives"][0]["attributes"]["POSITION"])
+    n = ga.accessor(gl, [data], gl["meshes"][0]["primitives"][0]["attributes"]["NORMAL"])
+    interleaved = np.hstack([p, n]).astype(np.float32).tobytes()
+    start = len(data) + (-len(data) % 4)
+    data = data + b"\0" * (start - len(data)) + interleaved
+    gl["bufferViews"].append({"buffer": 0, "byteOffset": start, "byteLength": len(interleaved), "byteStride": 24})
+    view = len(gl["bufferViews"]) - 1
+    position = dict(gl["accessors"][0], bufferView=view)
+    normal = dict(gl["accessors"][1], bufferView=view, byteOffset=12)
+    normal.pop("min", None), normal.pop("max", None)
+    gl["accessors"] += [position, normal]
+    gl["meshes"][0]["primitives"][0]["attributes"].update(POSITION=len(gl["accessors"]) - 2, NORMAL=len(gl["accessors"]) - 1)
+    strip = np.array([0, 1, 3, 2], np.uint16)  # the quad as a strip: triangles 0 1 3, 3 1 2 (flipped)
+    start = len(data) + (-len(data) % 4)
+    data = data + b"\0" * (start - len(data)) + strip.tobytes()
+    gl["bufferViews"].append({"buffer": 0, "byteOffset": start, "byteLength": strip.nbytes})
+    gl["accessors"].append({"bufferView": len(gl["bufferViews"]) - 1, "componentType": 5123, "count": 4, "type": "SCALAR"})
+    gl["meshes"][0]["primitives"][0].update(indices=len(gl["accessors"]) - 1, mode=5)
+    gl["buffers"][0]["byteLength"] = len(data)
+    del gl["images"][0]  # no texture in this one
+    gl["textures"] = []
+    gl["materials"][0] = {"name": "plain"}
+    gl["buffers"][0]["uri"] = "data:application/octet-stream;base64," + __import__("base64").b64encode(data).decode()
+    src = tmp_path / "strided.gltf"
+    src.write_text(json.dumps(gl))
+    bake_file(src, [tmp_path / "o.glb", tmp_path / "o.ply"], n_rays=16, seed=2, threads=1)
+    out, blobs = ga.load(tmp_path / "o.glb")
+    ground = out["meshes"][0]["primitives"][0]
+    np.testing.assert_array_equal(ga.accessor(out, blobs, ground["attributes"]["NORMAL"]), n)
+    assert out["bufferViews"][out["accessors"][ground["attributes"]["POSITION"]]["bufferView"]]["byteStride"] == 24
+    ao = ga.accessor(out, blobs, ground["attributes"]["_AO"])[:, 0]
+    np.testing.assert_array_equal(ao, read_bake(tmp_path / "o.ply")[:4].astype(np.float32))
+
+
+def test_a_surface_that_is_not_the_document_is_refused(tmp_path):
+    import dataclasses
+
+    src = ga.write_scene(tmp_path / "s.glb")
+    surface = load_mesh(src)
+    moved = dataclasses.replace(surface, positions=surface.positions + 1.0)
+    with pytest.raises(OutputError, match="mesh 'ground' matches no primitive of the glTF document"):
+        write_bake(tmp_path / "o.glb", moved, np.ones(surface.n_vertices))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["s.glb"]
