@@ -77,7 +77,9 @@ class Surface:
     metadata : dict
         Facts read from the file: ``"format"`` (``"PLY"``, ``"USD"``...) and, where the
         format defines them, ``"up_axis"`` (``"Y"``/``"Z"``) and ``"meters_per_unit"``
-        (USD stage metrics; glTF is always Y up, meters). Empty for array input.
+        (USD stage metrics; glTF is always Y up, meters; PLY: as an aobake PLY records
+        them); what writers need to keep the input: ``"ply"`` (the PLY as read) and
+        ``"gltf_path"`` (the glTF document). Empty for array input.
     """
 
     positions: FloatArray

@@ -192,15 +192,17 @@ def match_parts(doc: Document, surface) -> list[tuple[Slot, object]]:
     part's vertex count and world positions (to float32 precision)."""
     slots = scene_slots(doc)
     used = [False] * len(slots)
-    pairs = []
+    pairs, cursor = [], 0
     for part in surface.parts:
         positions = surface.positions[part.vertex_start : part.vertex_stop]
         scale = max(1.0, float(np.abs(positions).max(initial=0.0)))
-        for i, slot in enumerate(slots):
+        # parts come in scene order: the next slot is the one, unless trimesh skipped some
+        for i in [*range(cursor, len(slots)), *range(cursor)]:
+            slot = slots[i]
             if used[i] or slot.positions.shape != positions.shape:
                 continue
             if np.allclose(slot.positions, positions, rtol=0.0, atol=1e-5 * scale):
-                used[i] = True
+                used[i], cursor = True, i + 1
                 pairs.append((slot, part))
                 break
         else:
