@@ -240,13 +240,13 @@ def _method_options(method: str, given: dict, common: dict) -> dict:
     "--weld", is_flag=True, help="Bake with coincident vertices merged (STL soups, split seams); written per input vertex."
 )
 @click.option(
-    "--up", type=click.Choice(["Y", "Z"]), default=None, help="USD stage up axis [default: the input's, else Y]."
+    "--up", type=click.Choice(["Y", "Z"]), default=None, help="Up axis: USD stage, PLY comment, glTF root turned to Y-up [default: the input's, else Y]."
 )
 @click.option(
     "--meters-per-unit",
     type=click.FloatRange(min=0, min_open=True),
     default=None,
-    help="USD metersPerUnit [default: the input's, else 1].",
+    help="USD metersPerUnit, PLY comment, glTF root scale [default: the input's, else 1].",
 )
 @click.option(
     "--field",

@@ -242,3 +242,14 @@ def test_weld_and_color_reach_every_output_format(tmp_path):
     for k in range(inverse.max() + 1):
         assert np.ptp(values[0][inverse == k]) == 0
     assert np.unique(inverse).size < len(positions) / 4
+
+
+def test_channel_for_an_input_without_kept_colours_is_refused_before_baking(tmp_path):
+    import trimesh
+
+    trimesh.Trimesh(*_soup(), process=False).export(tmp_path / "soup.stl")
+    for out in ("o.ply", "o.glb"):
+        result = CliRunner().invoke(main, ["bake", str(tmp_path / "soup.stl"), "-o", str(tmp_path / out), "--channel", "B"])
+        assert result.exit_code == 1
+        assert result.output == "Error: soup.stl: --channel B: the mesh has no vertex colours to write into\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["soup.stl"]
