@@ -177,9 +177,9 @@ def bake_file(
         check_output_dir(path)
     placed = _load_fields(fields)
     surface = as_surface(source)
-    from .io import check_channel
+    from .io import check_outputs
 
-    check_channel(surface, outputs, channel)
+    check_outputs(surface, outputs, channel)
     t0 = time.perf_counter()
     if weld:
         from .mesh import weld_vertices

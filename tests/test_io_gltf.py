@@ -287,3 +287,27 @@ def test_a_surface_that_is_not_the_document_is_refused(tmp_path):
     with pytest.raises(OutputError, match="mesh 'ground' matches no primitive of the glTF document"):
         write_bake(tmp_path / "o.glb", moved, np.ones(surface.n_vertices))
     assert sorted(p.name for p in tmp_path.iterdir()) == ["s.glb"]
+
+
+def test_a_document_changed_since_loading_is_refused_before_baking(tmp_path, monkeypatch):
+    """The check runs before the bake: a document whose meshes moved since loading (here:
+    the loaded surface is shifted) fails at once, with nothing written."""
+    import aobake.pipeline as pipeline
+
+    src = ga.write_scene(tmp_path / "s.glb")
+    real = pipeline.as_surface
+
+    def shifted(source):
+        import dataclasses
+
+        surface = real(source)
+        return dataclasses.replace(surface, positions=surface.positions + 1.0)
+
+    def no_bake(*args, **kwargs):
+        raise AssertionError("baked before checking the outputs")
+
+    monkeypatch.setattr(pipeline, "as_surface", shifted)
+    monkeypatch.setattr(pipeline, "_compute", no_bake)
+    with pytest.raises(OutputError, match="matches no primitive"):
+        bake_file(src, [tmp_path / "o.ply", tmp_path / "o.glb"], n_rays=4)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["s.glb"]

@@ -32,7 +32,7 @@ __all__ = [
     "READ_SUFFIXES",
     "atomic_write",
     "check_ao",
-    "check_channel",
+    "check_outputs",
     "check_output_dir",
     "load_mesh",
     "output_kind",
@@ -245,9 +245,14 @@ def write_bake(
         )
 
 
-def check_channel(surface: Surface, outputs, channel: str | None) -> None:
-    """Refuse ``--channel`` before baking when an output cannot take it: USD output, or
-    an input without vertex colours (PLY ``red green blue``, glTF ``COLOR_0``)."""
+def check_outputs(surface: Surface, outputs, channel: str | None = None) -> None:
+    """Refuse, before baking, what the writers would refuse after it: a glTF input whose
+    meshes cannot be found in its document again (glTF output), and ``--channel`` where an
+    output cannot take it (USD output, an input without vertex colours: PLY ``red green
+    blue``, glTF ``COLOR_0``)."""
+    kinds = {output_kind(path) for path in outputs}
+    if "gltf" in kinds and surface.metadata.get("gltf_path"):
+        gltf.match_parts(gltf.read_document(surface.metadata["gltf_path"]), surface, warn=False)
     if channel is None:
         return
     for path in outputs:

@@ -187,9 +187,10 @@ def scene_slots(doc: Document) -> list[Slot]:
     return slots
 
 
-def match_parts(doc: Document, surface) -> list[tuple[Slot, object]]:
+def match_parts(doc: Document, surface, *, warn: bool = True) -> list[tuple[Slot, object]]:
     """``(slot, part)`` for every part of ``surface``: the first unused slot with the
-    part's vertex count and world positions (to float32 precision)."""
+    part's vertex count and world positions (to float32 precision). ``warn``: log how
+    many triangle primitives no part matched (they get no ``_AO``)."""
     slots = scene_slots(doc)
     used = [False] * len(slots)
     pairs, cursor = [], 0
@@ -210,7 +211,7 @@ def match_parts(doc: Document, surface) -> list[tuple[Slot, object]]:
                 f"{doc.path.name}: mesh {part.name!r} matches no primitive of the glTF document; cannot write glTF"
             )
     skipped = len(slots) - sum(used)
-    if skipped:
+    if skipped and warn:
         log.warning("%s: %d primitives were not baked and get no _AO", doc.path.name, skipped)
     return pairs
 
