@@ -382,9 +382,8 @@ def _packed_colors(doc: Document, blob: _Blob, index: int | None, values, channe
     a = doc.json["accessors"][index]
     colors = accessor_values(doc, index)
     column = CHANNELS[channel]
-    if column >= colors.shape[1]:  # RGB gains an alpha: opaque, then the packed values
-        opaque = np.iinfo(colors.dtype).max if colors.dtype.kind in "iu" else 1.0
-        colors = np.column_stack([colors, np.full(len(colors), opaque, dtype=colors.dtype)])
+    if column >= colors.shape[1]:  # "A" on RGB colours: an alpha column to hold the values
+        colors = np.column_stack([colors, np.zeros(len(colors), dtype=colors.dtype)])
     colors[:, column] = quantize(values, colors.dtype)
     return blob.accessor(colors, normalized=a.get("normalized", False))
 
