@@ -72,6 +72,8 @@ class Settings:
     up_axis: str | None = None
     meters_per_unit: float | None = None
     fields: tuple = ()
+    channel: str | None = None
+    weld: bool = False
 
     def bake_kwargs(self, threads: int | None) -> dict:
         options = dict(self.options)
@@ -83,6 +85,8 @@ class Settings:
             up_axis=self.up_axis,
             meters_per_unit=self.meters_per_unit,
             fields=self.fields,
+            channel=self.channel,
+            weld=self.weld,
             **options,
         )
 
@@ -211,6 +215,8 @@ def settings_key(settings: Settings, formats: Sequence[str]) -> tuple[dict, str]
         "color": settings.color,
         "up_axis": settings.up_axis,
         "meters_per_unit": settings.meters_per_unit,
+        "channel": settings.channel,
+        "weld": settings.weld,
         "fields": [
             {"file": Path(f).name, "sha256": file_hash(f), "placement": None if p is None else list(p)}
             for f, p in (_field_parts(item) for item in settings.fields)
@@ -383,7 +389,7 @@ def part_task(job: Job, settings: Settings, part: tuple, slots: dict):
     from .pipeline import bake_part
 
     kw = settings.bake_kwargs(_worker_threads(slots))
-    for name in ("color", "up_axis", "meters_per_unit", "fields"):
+    for name in ("color", "up_axis", "meters_per_unit", "fields", "channel", "weld"):
         kw.pop(name)
     try:
         surface = load_mesh(job.source)
@@ -401,9 +407,9 @@ def write_task(job: Job, settings: Settings, outdir: str, *parts) -> dict:
         return {"status": "failed", "error": failed[0].error, "worker": _worker_name()}
     surface = parts[0][1]
     try:
-        report = write_parts(
-            job.source, job.outputs, [p for p, _ in parts], surface=surface, **settings.bake_kwargs(None)
-        )
+        kw = settings.bake_kwargs(None)
+        kw.pop("weld")  # --split refuses --weld: ranges are of the input's vertices
+        report = write_parts(job.source, job.outputs, [p for p, _ in parts], surface=surface, **kw)
     except AobakeError as exc:
         return {"status": "failed", "error": str(exc), "worker": _worker_name()}
     return _record(report, job, outdir)
@@ -660,6 +666,10 @@ def bake_arguments(settings: Settings) -> list[str]:
             args += [flag(name, spec), str(value)]
     if settings.color:
         args.append("--color")
+    if settings.channel:
+        args += ["--channel", settings.channel]
+    if settings.weld:
+        args.append("--weld")
     if settings.up_axis:
         args += ["--up", settings.up_axis]
     if settings.meters_per_unit:

@@ -296,15 +296,29 @@ _BAKE_OPTIONS = [
         help="embree: ray casting (the reference); bunnell: disk and polygon form factors, no rays.",
     ),
     method_options,
-    click.option("--color", is_flag=True, help="Also write ao as grey vertex colours."),
     click.option(
-        "--up", type=click.Choice(["Y", "Z"]), default=None, help="USD stage up axis [default: the input's, else Y]."
+        "--color", is_flag=True, help="Also write ao as grey vertex colours (sRGB bytes in PLY, linear in USD and glTF)."
+    ),
+    click.option(
+        "--channel",
+        type=click.Choice(["R", "G", "B", "A"]),
+        default=None,
+        help="Write ao (linear) into this channel of the input's vertex colours, keeping the others (PLY, glTF).",
+    ),
+    click.option(
+        "--weld", is_flag=True, help="Bake with coincident vertices merged (STL soups, split seams); written per input vertex."
+    ),
+    click.option(
+        "--up",
+        type=click.Choice(["Y", "Z"]),
+        default=None,
+        help="Up axis: USD stage, PLY comment, glTF root turned to Y-up [default: the input's, else Y].",
     ),
     click.option(
         "--meters-per-unit",
         type=NumberRange(min=0, min_open=True),
         default=None,
-        help="USD metersPerUnit [default: the input's, else 1].",
+        help="USD metersPerUnit, PLY comment, glTF root scale [default: the input's, else 1].",
     ),
     click.option(
         "--field",
@@ -327,10 +341,10 @@ _BAKE_OPTIONS = [
     required=True,
     multiple=True,
     type=click.Path(path_type=Path),
-    help="Output .ply, .usda, .usdc or .usd (repeat for several formats from one bake).",
+    help="Output .ply, .usda, .usdc, .usd, .gltf or .glb (repeat for several formats from one bake).",
 )
 @bake_options
-def bake(mesh, output, method, color, up, meters_per_unit, fields, quiet, **given):
+def bake(mesh, output, method, color, channel, weld, up, meters_per_unit, fields, quiet, **given):
     """Bake AO of MESH into OUTPUT as the per-vertex attribute `ao`.
 
     `ao` = 1 - A: 1 = fully open, 0 = fully occluded. MESH: PLY, OBJ, STL, OFF,
@@ -340,12 +354,16 @@ def bake(mesh, output, method, color, up, meters_per_unit, fields, quiet, **give
     from .pipeline import bake_file
     from .progress import make_progress
 
+    if color and channel:
+        raise click.UsageError("--color and --channel both write the vertex colours; give one")
     with compile_notice(quiet):
         report = bake_file(
             mesh,
             output,
             method=method,
             color=color,
+            channel=channel,
+            weld=weld,
             up_axis=up,
             meters_per_unit=meters_per_unit,
             progress=make_progress(quiet),
@@ -395,7 +413,7 @@ def bake(mesh, output, method, color, up, meters_per_unit, fields, quiet, **give
 @bake_options
 def batch(
     paths, outdir, formats, workers, scheduler, split, retries, force, emit_commands,
-    method, color, up, meters_per_unit, fields, quiet, **given,
+    method, color, channel, weld, up, meters_per_unit, fields, quiet, **given,
 ):  # fmt: skip
     """Bake every mesh PATHS name into OUTDIR on a Dask cluster, skipping what is up to date.
 
@@ -421,12 +439,18 @@ def batch(
         raise click.UsageError(
             f"--split applies to --method {'/'.join(SPLITTABLE)} only: {method} couples all vertices"
         )
+    if color and channel:
+        raise click.UsageError("--color and --channel both write the vertex colours; give one")
+    if split > 1 and weld:
+        raise click.UsageError("--split bakes vertex ranges; a welded mesh is baked whole (drop --weld or --split)")
     if emit_commands and (scheduler or workers or split > 1):
         raise click.UsageError("--emit-commands bakes nothing: --scheduler, --workers and --split do not apply")
     settings = Settings(
         method=method,
         options=_method_options(method, given),
         color=color,
+        channel=channel,
+        weld=weld,
         up_axis=up,
         meters_per_unit=meters_per_unit,
         fields=tuple(fields),
@@ -506,7 +530,7 @@ def field_command(occluder, output, quiet, **options):
 )
 @click.option("--up", type=click.Choice(["Y", "Z"]), default=None, help="Up axis for --render [default: the file's, else Y].")
 def compare(reference, candidate, threshold, worst, json_path, plot_path, render_path, up):
-    """Error report of CANDIDATE against REFERENCE (bakes of one mesh: PLY, USD or .npy).
+    """Error report of CANDIDATE against REFERENCE (bakes of one mesh: PLY, USD, glTF or .npy).
 
     Prints RMSE, MAE, mean error, max and p50/p95/p99 of |error| (error = candidate -
     reference, on `ao` = 1 - A), the share of vertices above --threshold and the worst
@@ -603,7 +627,7 @@ def sweep(mesh, out_dir, reference_rays, repeats, no_plot, no_fields, up, seed, 
 @click.option("--size", type=click.IntRange(16, 8192), default=640, show_default=True, help="Image side in pixels.")
 @click.option("--up", type=click.Choice(["Y", "Z"]), default=None, help="Up axis [default: the file's, else Y].")
 def preview(bake, output, view, azimuth, elevation, size, up):
-    """Render BAKE (a PLY or USD file with `ao`) to a PNG: AO as grey, white = open."""
+    """Render BAKE (a PLY, USD or glTF file with `ao`) to a PNG: AO as grey, white = open."""
     from .pipeline import preview_file
 
     with compile_notice(False):

@@ -77,7 +77,9 @@ class Surface:
     metadata : dict
         Facts read from the file: ``"format"`` (``"PLY"``, ``"USD"``...) and, where the
         format defines them, ``"up_axis"`` (``"Y"``/``"Z"``) and ``"meters_per_unit"``
-        (USD stage metrics; glTF is always Y up, meters). Empty for array input.
+        (USD stage metrics; glTF is always Y up, meters; PLY: as an aobake PLY records
+        them); what writers need to keep the input: ``"ply"`` (the PLY as read) and
+        ``"gltf_path"`` (the glTF document). Empty for array input.
     """
 
     positions: FloatArray
@@ -517,3 +519,47 @@ def fan_triangulate(counts: IndexArray, indices: IndexArray) -> IndexArray:
     return np.stack([indices[first], indices[first + k], indices[first + k + 1]], axis=1).reshape(
         -1, 3
     )
+
+
+def weld_vertices(surface: Surface) -> tuple[Surface, IndexArray]:
+    """The surface with bit-identical positions merged within each part, for ``--weld``.
+
+    A triangle soup (STL) or a mesh split at normal or UV seams then bakes as one
+    connected surface: fewer vertices to compute, and the copies of a vertex get one
+    value. Parts are not welded to each other (touching objects stay separate shells).
+    The file's normals are not used, since split copies disagree on them: the welded
+    mesh gets angle-weighted normals.
+
+    Returns
+    -------
+    welded : Surface
+        First occurrences in input order; faces and polygons re-indexed.
+    inverse : (n,) int64
+        ``welded`` vertex of each input vertex: ``ao[inverse]`` is per input vertex.
+    """
+    raw, inverse, start = [], [], 0
+    for part in surface.parts:
+        positions = surface.positions[part.vertex_start : part.vertex_stop]
+        _, first, local = np.unique(positions, axis=0, return_index=True, return_inverse=True)
+        local = local.reshape(-1)
+        # renumber in order of first occurrence, so the welded vertices keep the input order
+        order = np.argsort(first, kind="stable")
+        rank = np.empty(len(order), dtype=np.int64)
+        rank[order] = np.arange(len(order))
+        local = rank[local]
+        faces = surface.faces[part.face_start : part.face_stop] - part.vertex_start
+        raw.append(
+            RawPart(
+                part.name,
+                positions[np.sort(first)],
+                local[faces],
+                None,
+                part.face_vertex_counts,
+                local[part.face_vertex_indices],
+                part.prim_path,
+            )
+        )
+        inverse.append(local + start)
+        start += len(order)
+    welded = assemble_surface(raw, surface.source, surface.metadata)
+    return welded, np.concatenate(inverse)

@@ -154,9 +154,12 @@ def bake_file(
     meters_per_unit: float | None = None,
     progress: Progress | None = None,
     fields: Sequence = (),
+    channel: str | None = None,
+    weld: bool = False,
     **options,
 ) -> BakeReport:
-    """Load ``source``, bake it once, write ``output`` (.ply, .usda, .usdc or .usd) atomically.
+    """Load ``source``, bake it once, write ``output`` (.ply, .usda, .usdc, .usd, .gltf or
+    .glb) atomically.
 
     ``output`` may be several paths (one bake, several formats). Suffixes and
     directories are checked before loading or computing, so a typo fails at once;
@@ -171,15 +174,25 @@ def bake_file(
     before computing; the mesh's own AO from ``method`` is multiplied by every
     field's 1 - A_k (:func:`~aobake.methods.fields.fields_ao`).
 
+    ``channel`` (``"R"``, ``"G"``, ``"B"``, ``"A"``): write ``ao`` into that channel of
+    the input's vertex colours (PLY and glTF), other channels kept. ``weld``: bake the
+    mesh with coincident vertices of each part merged
+    (:func:`aobake.mesh.weld_vertices`), written back per input vertex.
+
     Returns
     -------
     BakeReport
     """
+    from .io import check_outputs
+
     outputs = _check_outputs(output, source)
     placed = _load_fields(fields)
     surface = as_surface(source)
-    part = _bake_range(surface, method, options, progress, None)
-    return _write(source, surface, outputs, [part], method, options, placed, color, up_axis, meters_per_unit)
+    check_outputs(surface, outputs, channel)
+    part = _bake_range(surface, method, options, progress, None, weld=weld)
+    return _write(
+        source, surface, outputs, [part], method, options, placed, color, up_axis, meters_per_unit, channel, weld
+    )
 
 
 @dataclass(frozen=True)
@@ -242,6 +255,7 @@ def write_parts(
     meters_per_unit: float | None = None,
     fields: Sequence = (),
     surface: Surface | None = None,
+    channel: str | None = None,
     **options,
 ) -> BakeReport:
     """Stitch the ranges of :func:`bake_part` in order and write them like :func:`bake_file`.
@@ -260,7 +274,10 @@ def write_parts(
         expected = part.vertices[1]
     if expected != surface.n_vertices:
         raise ValueError(f"parts cover {expected} of {surface.n_vertices} vertices")
-    return _write(source, surface, outputs, parts, method, options, placed, color, up_axis, meters_per_unit)
+    from .io import check_outputs
+
+    check_outputs(surface, outputs, channel)
+    return _write(source, surface, outputs, parts, method, options, placed, color, up_axis, meters_per_unit, channel)
 
 
 def _check_outputs(output, source) -> list[Path]:
@@ -276,17 +293,29 @@ def _check_outputs(output, source) -> list[Path]:
     return outputs
 
 
-def _bake_range(surface: Surface, method: str, options: dict, progress, vertices) -> PartResult:
-    """Run ``method`` on ``vertices`` (None: all); compiling kernels is kept out of the time."""
+def _bake_range(surface: Surface, method: str, options: dict, progress, vertices, *, weld: bool = False) -> PartResult:
+    """Run ``method`` on ``vertices`` (None: all); compiling kernels is kept out of the time.
+    ``weld``: bake the welded mesh (whole meshes only), results per input vertex."""
     with CompileWatch() as watch:
         t0 = time.perf_counter()
-        ao, n_rays, contacts = _compute(surface, method, options, progress, vertices)
+        if weld:
+            from .mesh import weld_vertices
+
+            if vertices is not None:
+                raise ValueError("a welded mesh is baked whole: weld takes no vertex range")
+            welded, inverse = weld_vertices(surface)
+            ao, n_rays, contacts = _compute(welded, method, options, progress)
+            ao = np.asarray(ao)[inverse]
+        else:
+            ao, n_rays, contacts = _compute(surface, method, options, progress, vertices)
         seconds = time.perf_counter() - t0 - watch.seconds
     lo, hi = (0, surface.n_vertices) if vertices is None else vertices
     return PartResult((lo, hi), ao, n_rays, contacts, seconds, watch.seconds)
 
 
-def _write(source, surface, outputs, parts, method, options, placed, color, up_axis, meters_per_unit) -> BakeReport:
+def _write(
+    source, surface, outputs, parts, method, options, placed, color, up_axis, meters_per_unit, channel=None, weld=False
+) -> BakeReport:
     """Fields applied, checks, every output written atomically (all or none)."""
     from .io import atomic_write, write_bake
 
@@ -304,6 +333,10 @@ def _write(source, surface, outputs, parts, method, options, placed, color, up_a
     custom.update({k: ("none" if v is None else v) for k, v in options.items() if k not in ("threads", "chunk_rays")})
     if placed:
         custom["fields"] = ", ".join(name for _, _, name in placed)  # USD customData takes no lists
+    if weld:
+        custom["weld"] = True
+    if channel is not None:
+        custom["channel"] = channel
     # Stage metrics: what the caller says, else what the input said (USD, glTF), else
     # the documented defaults. An unauthored metersPerUnit would mean centimetres.
     meta = surface.metadata
@@ -316,6 +349,7 @@ def _write(source, surface, outputs, parts, method, options, placed, color, up_a
                 surface,
                 np.asarray(ao),
                 color=color,
+                channel=channel,
                 custom_data=custom,
                 up_axis=up_axis or meta.get("up_axis") or DEFAULT_UP_AXIS,
                 meters_per_unit=meters_per_unit or meta.get("meters_per_unit") or DEFAULT_METERS_PER_UNIT,
@@ -346,7 +380,7 @@ def compare_files(
     render_path: str | Path | None = None,
     up: str | None = None,
 ):
-    """Compare two bakes of the same mesh (PLY, USD or ``.npy``); ``reference`` is "a".
+    """Compare two bakes of the same mesh (PLY, USD, glTF or ``.npy``); ``reference`` is "a".
 
     Worst-vertex positions come from whichever file is a mesh. ``json_path`` and
     ``plot_path`` (PNG, needs matplotlib) are written atomically; their suffixes and
@@ -516,7 +550,7 @@ def preview_file(
     azimuth: float | None = None,
     elevation: float | None = None,
 ) -> None:
-    """Render a bake (a mesh file carrying ``ao``: PLY or USD) to a PNG, AO as grey."""
+    """Render a bake (a mesh file carrying ``ao``: PLY, USD or glTF) to a PNG, AO as grey."""
     from .io import load_mesh, read_bake
     from .tools.preview import grey, render_values, write_png
 
@@ -540,7 +574,7 @@ def render_comparison(reference, candidate, output, *, size: int = 480, up: str 
 
     mesh_path = next((p for p in (reference, candidate) if Path(p).suffix.lower() != ".npy"), None)
     if mesh_path is None:
-        raise FormatError(f"{Path(output).name}: rendering needs at least one bake that is a mesh (PLY or USD)")
+        raise FormatError(f"{Path(output).name}: rendering needs at least one bake that is a mesh (PLY, USD or glTF)")
     surface = load_mesh(mesh_path)
     a = read_bake(reference, n_vertices=surface.n_vertices)
     b = read_bake(candidate, n_vertices=surface.n_vertices)

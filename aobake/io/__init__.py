@@ -12,9 +12,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError
+from ..errors import FormatError, InputError
 from ..mesh import Surface, assemble_surface
-from . import obj, ply, trimesh_formats, usd
+from . import gltf, obj, ply, trimesh_formats, usd
 from .common import (
     BAKE_SUFFIXES,
     atomic_write,
@@ -24,7 +24,7 @@ from .common import (
     output_kind,
     short_reason,
 )
-from .ply import read_ao_ply, write_ply
+from .ply import read_ao_ply, write_kept_ply, write_ply
 from .usd import read_ao_usd, write_usd
 
 __all__ = [
@@ -34,6 +34,7 @@ __all__ = [
     "atomic_write",
     "check_ao",
     "check_input_file",
+    "check_outputs",
     "check_output_dir",
     "load_mesh",
     "output_kind",
@@ -117,7 +118,7 @@ def load_mesh(path: str | Path) -> Surface:
             if fmt == "OBJ":
                 raw = obj.read_parts(path, data)
             elif fmt == "PLY":
-                raw = ply.read_parts(path, data)
+                raw = ply.read_parts(path, data, metadata)
             else:
                 raw = trimesh_formats.read_parts(path, data, fmt, metadata)
     except InputError:
@@ -136,6 +137,8 @@ READ_SUFFIXES = {
     ".usda": "usd",
     ".usdc": "usd",
     ".usdz": "usd",
+    ".glb": "gltf",
+    ".gltf": "gltf",
     ".npy": "npy",
 }
 
@@ -149,31 +152,42 @@ def write_bake(
     up_axis: str = "Y",
     meters_per_unit: float = 1.0,
     custom_data: Mapping[str, str | float | int | bool] | None = None,
+    channel: str | None = None,
 ) -> None:
-    """Write a baked surface to ``path``, choosing PLY or USD from its suffix.
+    """Write a baked surface to ``path``, choosing PLY, USD or glTF from its suffix.
 
-    PLY gets the whole surface concatenated (positions, triangles, normals, ``ao``)
-    with ``custom_data`` as ``comment aobake <key>=<value>`` header lines; PLY has no
-    up axis or unit, so ``up_axis`` and ``meters_per_unit`` apply to USD only. USD gets
-    one mesh per part with its original polygons (see :func:`aobake.io.usd.write_usd`).
+    glTF (``.gltf``/``.glb``): a glTF input's own document with ``_AO`` per primitive,
+    else a new document of the parts (:func:`aobake.io.gltf.write_gltf`).
+
+    PLY: a PLY input is written back whole with ``ao`` added
+    (:func:`aobake.io.ply.write_kept_ply`: every element and property kept); other
+    inputs as the whole surface concatenated (positions, triangles, normals, ``ao``).
+    ``custom_data`` becomes ``comment aobake <key>=<value>`` header lines, and
+    ``up_axis`` and ``meters_per_unit`` are recorded the same way (PLY has no field for
+    them; :func:`load_mesh` reads them back). USD gets one mesh per part with its
+    original polygons (see :func:`aobake.io.usd.write_usd`).
 
     Parameters
     ----------
     path : str or Path
-        ``.ply``, ``.usda``, ``.usdc`` or ``.usd``; written atomically.
+        ``.ply``, ``.usda``, ``.usdc``, ``.usd``, ``.gltf`` or ``.glb``; written atomically.
     surface : aobake.mesh.Surface
         ``positions (n, 3) float64``, ``faces (m, 3) int64``, ``normals (n, 3) float64``
         and ``parts``.
     ao : (n,) float in [0, 1]
         Accessibility 1 - A (1 = fully open), one value per surface vertex.
     color : bool
-        Also write ``ao`` as grey vertex colours.
+        Also write ``ao`` as grey vertex colours (sRGB bytes in PLY, linear elsewhere:
+        :mod:`aobake.io.color`).
     up_axis : {"Y", "Z"}
-        USD stage ``upAxis``.
+        USD stage ``upAxis``, recorded in PLY comments.
     meters_per_unit : float
         USD stage ``metersPerUnit``.
     custom_data : mapping of str to str, float, int or bool, optional
         Provenance (method, parameters, seed, version).
+    channel : {"R", "G", "B", "A"}, optional
+        Write ``ao`` (linear) into this channel of the input's own vertex colours,
+        keeping the other channels; an input without colours is an InputError.
 
     Raises
     ------
@@ -185,10 +199,28 @@ def write_bake(
     InputError, OutputError, ValueError
         From the writer (bad topology, unwritable directory, bad options).
     """
-    if output_kind(path) == "ply":
-        comments = (
-            [] if custom_data is None else [f"aobake {k}={v}" for k, v in dict(custom_data).items()]
+    kind = output_kind(path)
+    if kind == "gltf":
+        gltf.write_gltf(
+            path,
+            surface,
+            ao,
+            color=color,
+            channel=channel,
+            up_axis=up_axis,
+            meters_per_unit=meters_per_unit,
+            custom_data=None if custom_data is None else dict(custom_data),
         )
+        return
+    if kind == "ply":
+        comments = [] if custom_data is None else [f"aobake {k}={v}" for k, v in dict(custom_data).items()]
+        comments += [f"aobake up_axis={up_axis}", f"aobake meters_per_unit={meters_per_unit:g}"]
+        kept = surface.metadata.get("ply")
+        if kept is not None and kept.data.elements["vertex"].count == surface.n_vertices:
+            write_kept_ply(path, kept, ao, color=color, channel=channel, comments=comments, source=surface.source)
+            return
+        if channel is not None:
+            raise InputError(surface.source, f"--channel {channel}: the mesh has no vertex colours to write into")
         write_ply(
             path,
             surface.positions,
@@ -199,6 +231,8 @@ def write_bake(
             comments=comments,
         )
     else:
+        if channel is not None:
+            raise FormatError(f"{Path(path).name}: --channel is not written to USD (use PLY or glTF output)")
         write_usd(
             path,
             surface,
@@ -210,8 +244,33 @@ def write_bake(
         )
 
 
+def check_outputs(surface: Surface, outputs, channel: str | None = None) -> None:
+    """Refuse, before baking, what the writers would refuse after it: a glTF input whose
+    meshes cannot be found in its document again (glTF output), and ``--channel`` where an
+    output cannot take it (USD output, an input without vertex colours: PLY ``red green
+    blue``, glTF ``COLOR_0``)."""
+    kinds = {output_kind(path) for path in outputs}
+    if "gltf" in kinds and surface.metadata.get("gltf_path"):
+        gltf.match_parts(gltf.read_document(surface.metadata["gltf_path"]), surface, warn=False)
+    if channel is None:
+        return
+    for path in outputs:
+        kind = output_kind(path)
+        if kind == "usd":
+            raise FormatError(f"{Path(path).name}: --channel is not written to USD (use PLY or glTF output)")
+        kept = surface.metadata.get("ply")
+        if kind == "ply" and kept is not None:
+            if ply.vertex_colors(kept) is None:
+                raise InputError(surface.source, f"--channel {channel}: the mesh has no vertex colours (red green blue)")
+        elif kind == "gltf" and surface.metadata.get("gltf_path"):
+            gltf.check_channel(gltf.read_document(surface.metadata["gltf_path"]), channel)
+        else:
+            raise InputError(surface.source, f"--channel {channel}: the mesh has no vertex colours to write into")
+
+
 def read_bake(path: str | Path, *, n_vertices: int | None = None) -> np.ndarray:
-    """Read per-vertex ``ao`` from a ``.ply``, ``.usd``/``.usda``/``.usdc``/``.usdz`` or ``.npy``.
+    """Read per-vertex ``ao`` from a ``.ply``, ``.usd``/``.usda``/``.usdc``/``.usdz``,
+    ``.glb``/``.gltf`` (``_AO``) or ``.npy``.
 
     Parameters
     ----------
@@ -224,7 +283,8 @@ def read_bake(path: str | Path, *, n_vertices: int | None = None) -> np.ndarray:
     Returns
     -------
     ao : (n,) float64
-        One value per vertex, in file order (USD: all meshes in traversal order).
+        One value per vertex, in file order (USD: all meshes in traversal order; glTF:
+        ``_AO`` of the primitives in scene order).
 
     Raises
     ------
@@ -243,6 +303,8 @@ def read_bake(path: str | Path, *, n_vertices: int | None = None) -> np.ndarray:
         ao = read_ao_ply(path)
     elif kind == "usd":
         ao = read_ao_usd(path)
+    elif kind == "gltf":
+        ao = gltf.read_ao_gltf(path)
     else:
         ao = _read_npy(path)
     if n_vertices is not None and ao.shape[0] != n_vertices:

@@ -76,6 +76,7 @@ def read_parts(path: Path, data: bytes, fmt: str, metadata: dict) -> list[RawPar
     if fmt == "glTF":
         kwargs.update(merge_primitives=False, skip_materials=True)
         metadata.update(up_axis="Y", meters_per_unit=1.0)  # fixed by the glTF specification
+        metadata["gltf_path"] = str(path.resolve())  # glTF output writes this document back
     elif fmt == "STL" and not _is_binary_stl(data):
         decode_text(
             path, data, fmt, "neither binary (size does not match the triangle count) nor text"
