@@ -217,7 +217,7 @@ def _method_options(method: str, given: dict, common: dict) -> dict:
     required=True,
     multiple=True,
     type=click.Path(path_type=Path),
-    help="Output .ply, .usda, .usdc or .usd (repeat for several formats from one bake).",
+    help="Output .ply, .usda, .usdc, .usd or .usdz (repeat for several formats from one bake).",
 )
 @click.option(
     "--method",
@@ -238,6 +238,21 @@ def _method_options(method: str, given: dict, common: dict) -> dict:
     help="USD metersPerUnit [default: the input's, else 1].",
 )
 @click.option(
+    "--overlay/--no-overlay",
+    default=None,
+    help="USD input to .usda/.usdc/.usd: write a layer over the source holding only ao "
+    "(sublayers it by relative path), or a full flattened copy with ao "
+    "[default: overlay]. .usdz is always a flattened package.",
+)
+@click.option(
+    "--time",
+    "time_code",
+    type=NumberRange(),
+    default=None,
+    help="USD input: read animated points and transforms at this time code "
+    "[default: the default time; geometry with only time samples: its earliest sample].",
+)
+@click.option(
     "--field",
     "fields",
     multiple=True,
@@ -247,12 +262,13 @@ def _method_options(method: str, given: dict, common: dict) -> dict:
     "Repeatable; each multiplies ao by its 1 - A_k.",
 )
 @common_options
-def bake(mesh, output, method, color, up, meters_per_unit, fields, seed, threads, quiet, **given):
+def bake(mesh, output, method, color, up, meters_per_unit, overlay, time_code, fields, seed, threads, quiet, **given):
     """Bake AO of MESH into OUTPUT as the per-vertex attribute `ao`.
 
     `ao` = 1 - A: 1 = fully open, 0 = fully occluded. MESH: PLY, OBJ, STL, OFF,
     GLB/glTF or USD; vertex count and order are kept. With --field, the mesh's own AO
-    is multiplied by each occluder's: 1 - A = (1 - A_self) prod (1 - A_k).
+    is multiplied by each occluder's: 1 - A = (1 - A_self) prod (1 - A_k). A USD
+    input baked to USD gives an overlay: the source with primvars:ao added, by layering.
     """
     from .pipeline import bake_file
     from .progress import make_progress
@@ -266,6 +282,8 @@ def bake(mesh, output, method, color, up, meters_per_unit, fields, seed, threads
         meters_per_unit=meters_per_unit,
         progress=make_progress(quiet),
         fields=fields,
+        time=time_code,
+        overlay=overlay,
         **_method_options(method, given, {"seed": seed, "threads": threads}),
     )
     if not quiet:

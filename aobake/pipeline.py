@@ -6,10 +6,10 @@ Parses no command-line options and never exits the process.
 from __future__ import annotations
 
 import contextlib
-import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from time import perf_counter
 from typing import Any
 
 import numpy as np
@@ -17,8 +17,8 @@ import numpy as np
 from . import __version__
 from ._types import AOArray
 from .constants import DEFAULT_METERS_PER_UNIT, DEFAULT_UP_AXIS
-from .errors import FormatError, NumericalError
-from .io import check_output_dir, output_kind
+from .errors import FormatError, NumericalError, OutputError
+from .io import check_output_dir, usd_output_mode
 from .mesh import Surface
 from .methods import METHODS
 from .progress import Progress
@@ -44,6 +44,8 @@ class BakeReport:
         Per ``--field``, receivers beyond its r_far (not evaluated).
     field_seconds : float
         Time spent evaluating the fields (not in ``seconds``).
+    note : str
+        What the summary adds about the input, e.g. the time an animated USD was read at.
     """
 
     source: str
@@ -56,6 +58,7 @@ class BakeReport:
     options: dict = field(default_factory=dict)
     field_skipped: tuple = ()
     field_seconds: float = 0.0
+    note: str = ""
 
     def summary(self) -> str:
         """One line: vertices, rays, seconds, rays per second."""
@@ -73,18 +76,21 @@ class BakeReport:
                 f", x {len(self.field_skipped)} field(s) in {self.field_seconds:.2f} s"
                 f" ({skipped} receivers beyond r_far)"
             )
+        if self.note:
+            text += f", {self.note}"
         return text + f" -> {self.output}"
 
 
-def as_surface(mesh: Any) -> Surface:
-    """A :class:`Surface` from a path, a ``trimesh.Trimesh``/``Scene``, or a Surface."""
+def as_surface(mesh: Any, time: float | None = None) -> Surface:
+    """A :class:`Surface` from a path, a ``trimesh.Trimesh``/``Scene``, or a Surface
+    (``time``: the USD time code to read a path at)."""
     if isinstance(mesh, Surface):
         return mesh
     from .io import load_mesh
     from .io.trimesh_formats import mesh_from_trimesh
 
     if isinstance(mesh, (str, Path)):
-        return load_mesh(mesh)
+        return load_mesh(mesh, time=time)
     return mesh_from_trimesh(mesh)
 
 
@@ -138,9 +144,11 @@ def bake_file(
     meters_per_unit: float | None = None,
     progress: Progress | None = None,
     fields: Sequence = (),
+    time: float | None = None,
+    overlay: bool | None = None,
     **options,
 ) -> BakeReport:
-    """Load ``source``, bake it once, write ``output`` (.ply, .usda, .usdc or .usd) atomically.
+    """Load ``source``, bake it once, write ``output`` (.ply, .usda, .usdc, .usd, .usdz) atomically.
 
     ``output`` may be several paths (one bake, several formats). Suffixes and
     directories are checked before loading or computing, so a typo fails at once;
@@ -155,6 +163,11 @@ def bake_file(
     before computing; the mesh's own AO from ``method`` is multiplied by every
     field's 1 - A_k (:func:`~aobake.methods.fields.fields_ao`).
 
+    USD input: ``time`` is the time code points and transforms are read at (default:
+    USD's default time, see :func:`aobake.io.load_mesh`). A USD output of a USD input is
+    an overlay layer over ``source`` unless ``overlay=False`` (a full flattened copy);
+    ``.usdz`` is a flattened package (:func:`aobake.io.usd_output_mode`).
+
     Returns
     -------
     BakeReport
@@ -164,18 +177,21 @@ def bake_file(
     outputs = [Path(output)] if isinstance(output, (str, Path)) else [Path(o) for o in output]
     if not outputs:
         raise ValueError("no output path given")
+    usd_input = _is_usd(source)
     for path in outputs:
-        output_kind(path)
+        mode = usd_output_mode(path, usd_input, overlay)
         check_output_dir(path)
+        if mode == "overlay" and isinstance(source, (str, Path)) and Path(path).resolve() == Path(source).resolve():
+            raise OutputError(f"{Path(path).name}: is the USD source itself; write the overlay to a new file")
     placed = _load_fields(fields)
-    surface = as_surface(source)
-    t0 = time.perf_counter()
+    surface = as_surface(source, time)
+    t0 = perf_counter()
     ao, n_rays, contacts = _compute(surface, method, options, progress)
-    seconds = time.perf_counter() - t0
+    seconds = perf_counter() - t0
     skipped: tuple = ()
     if placed:
         ao, skipped = _apply_fields(surface, ao, placed, options.get("threads"))
-    field_seconds = time.perf_counter() - t0 - seconds
+    field_seconds = perf_counter() - t0 - seconds
     if ao.shape != (surface.n_vertices,):
         raise NumericalError(f"{surface.source}: {method} returned {ao.shape} values for {surface.n_vertices} vertices")
     custom = {"method": method, "version": __version__, "source": Path(str(source)).name}
@@ -197,6 +213,7 @@ def bake_file(
                 custom_data=custom,
                 up_axis=up_axis or meta.get("up_axis") or DEFAULT_UP_AXIS,
                 meters_per_unit=meters_per_unit or meta.get("meters_per_unit") or DEFAULT_METERS_PER_UNIT,
+                overlay=overlay,
             )
     return BakeReport(
         source=Path(str(source)).name,
@@ -209,7 +226,26 @@ def bake_file(
         options=dict(options),
         field_skipped=skipped,
         field_seconds=field_seconds if placed else 0.0,
+        note=_time_note(meta),
     )
+
+
+def _is_usd(source: Any) -> bool:
+    """Whether ``source`` is a USD file (by suffix) or a surface read from one."""
+    from .io.usd_overlay import usd_source
+
+    if isinstance(source, Surface):
+        return usd_source(source) is not None
+    return isinstance(source, (str, Path)) and Path(source).suffix.lower() in (".usd", ".usda", ".usdc", ".usdz")
+
+
+def _time_note(meta: dict) -> str:
+    """"2 animated meshes read at time 12" when a USD input has time samples, else ""."""
+    animated = meta.get("animated", 0)
+    if not animated:
+        return ""
+    when = "the default time" if meta.get("time") is None else f"time {meta['time']:g}"
+    return f"{animated} animated mesh{'es' if animated > 1 else ''} read at {when}"
 
 
 def compare_files(

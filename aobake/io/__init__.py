@@ -12,9 +12,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError
+from ..errors import FormatError, InputError
 from ..mesh import Surface, assemble_surface
-from . import obj, ply, trimesh_formats, usd
+from . import obj, ply, trimesh_formats, usd, usd_overlay
 from .common import (
     BAKE_SUFFIXES,
     atomic_write,
@@ -38,6 +38,7 @@ __all__ = [
     "read_ao_ply",
     "read_ao_usd",
     "read_bake",
+    "usd_output_mode",
     "write_bake",
     "write_ply",
     "write_usd",
@@ -58,7 +59,7 @@ INPUT_FORMATS = {
 }
 
 
-def load_mesh(path: str | Path) -> Surface:
+def load_mesh(path: str | Path, *, time: float | None = None) -> Surface:
     """Read a mesh file into a :class:`Surface`, keeping its vertices exactly.
 
     Vertex count and order are the file's: duplicate, unreferenced and degenerate data
@@ -73,6 +74,11 @@ def load_mesh(path: str | Path) -> Surface:
     path : str or Path
         A ``.ply``, ``.obj``, ``.stl``, ``.off``, ``.glb``, ``.gltf``, ``.usd``,
         ``.usda``, ``.usdc`` or ``.usdz`` file.
+    time : float, optional
+        USD only: the time code to read points and transforms at (default: USD's
+        default time; a scene whose geometry has only time samples is read at its
+        earliest sample, see :func:`aobake.io.usd.read_parts`). ``metadata["time"]``
+        says which time was read.
 
     Returns
     -------
@@ -109,10 +115,12 @@ def load_mesh(path: str | Path) -> Surface:
         raise InputError(
             path, f"unsupported input suffix {path.suffix or '(none)'!r}; use one of {supported}"
         )
+    if time is not None and fmt != "USD":
+        raise InputError(path, f"a time was given but {fmt} files have no time samples (USD only)")
     metadata: dict = {"format": fmt}
     try:
         if fmt == "USD":
-            raw = usd.read_parts(path, metadata)
+            raw = usd.read_parts(path, metadata, time)
         else:
             data = path.read_bytes()
             if fmt == "OBJ":
@@ -150,18 +158,22 @@ def write_bake(
     up_axis: str = "Y",
     meters_per_unit: float = 1.0,
     custom_data: Mapping[str, str | float | int | bool] | None = None,
+    overlay: bool | None = None,
 ) -> None:
     """Write a baked surface to ``path``, choosing PLY or USD from its suffix.
 
     PLY gets the whole surface concatenated (positions, triangles, normals, ``ao``)
     with ``custom_data`` as ``comment aobake <key>=<value>`` header lines; PLY has no
     up axis or unit, so ``up_axis`` and ``meters_per_unit`` apply to USD only. USD gets
-    one mesh per part with its original polygons (see :func:`aobake.io.usd.write_usd`).
+    one mesh per part with its original polygons (see :func:`aobake.io.usd.write_usd`),
+    except for a surface read from USD: then an overlay layer over the source (the
+    default) or, with ``overlay=False``, the source flattened with ``ao`` added (see
+    :mod:`aobake.io.usd_overlay`). ``.usdz`` is always a flattened, self-contained package.
 
     Parameters
     ----------
     path : str or Path
-        ``.ply``, ``.usda``, ``.usdc`` or ``.usd``; written atomically.
+        ``.ply``, ``.usda``, ``.usdc``, ``.usd`` or ``.usdz``; written atomically.
     surface : aobake.mesh.Surface
         ``positions (n, 3) float64``, ``faces (m, 3) int64``, ``normals (n, 3) float64``
         and ``parts``.
@@ -175,11 +187,15 @@ def write_bake(
         USD stage ``metersPerUnit``.
     custom_data : mapping of str to str, float, int or bool, optional
         Provenance (method, parameters, seed, version).
+    overlay : bool, optional
+        USD outputs of a USD input: True or None (default) writes an overlay, False a
+        full flattened copy. True for another input is an error (see
+        :func:`usd_output_mode`).
 
     Raises
     ------
     FormatError
-        Unsupported suffix (checked first).
+        Unsupported suffix, or ``overlay`` that does not apply (checked first).
     NumericalError
         ``ao`` is not ``(n,)`` for the surface's ``n`` vertices, non-finite, or
         outside [0, 1] (checked by the writer before anything is opened).
@@ -200,7 +216,13 @@ def write_bake(
             comments=comments,
         )
     else:
-        write_usd(
+        writer = {
+            "usd": write_usd,
+            "overlay": usd_overlay.write_usd_overlay,
+            "copy": usd_overlay.write_usd_copy,
+            "usdz": usd_overlay.write_usdz,
+        }[usd_output_mode(path, usd_overlay.usd_source(surface) is not None, overlay)]
+        writer(
             path,
             surface,
             ao,
@@ -209,6 +231,31 @@ def write_bake(
             meters_per_unit=meters_per_unit,
             custom_data=custom_data,
         )
+
+
+def usd_output_mode(path: str | Path, usd_input: bool, overlay: bool | None = None) -> str:
+    """How a USD output is written: ``"overlay"``, ``"copy"``, ``"usdz"`` or ``"usd"``
+    (aobake's own stage, for non-USD inputs); ``"ply"`` for PLY.
+
+    ``overlay`` None means the default (an overlay when input and output are both USD).
+    Raises :class:`FormatError` when ``overlay=True`` cannot be honoured: the input is
+    not USD, or the output is a ``.usdz`` package (self-contained by definition).
+    """
+    kind = output_kind(path)
+    if kind == "ply":
+        return kind
+    if overlay and kind == "usdz":
+        raise FormatError(
+            f"{Path(path).name}: a .usdz package is self-contained and cannot be an overlay; "
+            "write the overlay as .usda, .usdc or .usd"
+        )
+    if overlay and not usd_input:
+        raise FormatError(f"{Path(path).name}: an overlay needs a USD input to layer over")
+    if kind == "usdz":
+        return kind
+    if not usd_input:
+        return "usd"
+    return "copy" if overlay is False else "overlay"
 
 
 def read_bake(path: str | Path, *, n_vertices: int | None = None) -> np.ndarray:

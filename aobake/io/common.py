@@ -18,11 +18,11 @@ import numpy as np
 from ..errors import FormatError, InputError, NumericalError, OutputError
 
 #: Output suffixes and the writer family that handles them.
-BAKE_SUFFIXES = {".ply": "ply", ".usda": "usd", ".usdc": "usd", ".usd": "usd"}
+BAKE_SUFFIXES = {".ply": "ply", ".usda": "usd", ".usdc": "usd", ".usd": "usd", ".usdz": "usdz"}
 
 
 def output_kind(path: str | Path) -> str:
-    """Return ``"ply"`` or ``"usd"`` for an output path, or raise :class:`FormatError`.
+    """Return ``"ply"``, ``"usd"`` or ``"usdz"`` for an output path, or raise :class:`FormatError`.
 
     Called before any computation so a typo in ``-o`` fails fast.
     """
