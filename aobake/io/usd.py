@@ -168,7 +168,7 @@ def read_ao_usd(path: str | Path) -> np.ndarray:
             missing.append(str(prim.GetPath()))
             continue
         values = primvar.ComputeFlattened()
-        points = mesh.GetPointsAttr().Get()
+        points = _usd_value(mesh.GetPointsAttr(), Usd.TimeCode.Default(), None)
         n_points = 0 if points is None else len(points)
         if values is None:
             missing.append(str(prim.GetPath()))
@@ -198,6 +198,13 @@ def _open_fresh(path: Path, Sdf, Usd):
     try:
         if Sdf.Layer.Find(str(path.resolve())) is not None:
             layer = Sdf.Layer.OpenAsAnonymous(str(path.resolve()))
+            if layer is not None:
+                # an anonymous layer anchors nothing: sublayers relative to the file (an
+                # aobake overlay's source) are made absolute so they still compose
+                paths = [_anchored(sub, path) for sub in layer.subLayerPaths]
+                del layer.subLayerPaths[:]
+                for sub in paths:
+                    layer.subLayerPaths.append(sub)
             stage = None if layer is None else Usd.Stage.Open(layer)
         else:
             stage = Usd.Stage.Open(str(path.resolve()))
@@ -209,6 +216,13 @@ def _open_fresh(path: Path, Sdf, Usd):
     if stage is None:
         raise InputError(path, "not a readable USD file")
     return stage
+
+
+def _anchored(asset: str, layer_path: Path) -> str:
+    """A layer's relative asset path made absolute against the layer's directory."""
+    if asset.startswith(("./", "../")) or not (Path(asset).is_absolute() or ":" in asset):
+        return str((layer_path.resolve().parent / asset).resolve())
+    return asset
 
 
 def _clean_custom_data(custom_data) -> dict:
