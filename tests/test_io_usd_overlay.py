@@ -483,3 +483,15 @@ def test_cli_overlay_by_default_and_full_copy_on_request(runner, tmp_path):
     assert result.exit_code == 0, result.output
     assert list(Sdf.Layer.OpenAsAnonymous(str(tmp_path / "c.usda")).subLayerPaths) == []
     np.testing.assert_array_equal(read_bake(tmp_path / "o.usda"), read_bake(tmp_path / "c.usda"))
+
+
+def test_same_inputs_give_identical_files(tmp_path):
+    source, _, _ = _scene(tmp_path)
+    for name in ("a", "b"):
+        _bake(source, tmp_path / f"{name}.usda", tmp_path / f"{name}.usdz", color=True)
+        _bake(source, tmp_path / f"{name}_copy.usdc", overlay=False)
+    for suffix in (".usda", ".usdz", "_copy.usdc"):
+        assert (tmp_path / f"a{suffix}").read_bytes() == (tmp_path / f"b{suffix}").read_bytes(), suffix
+    # the package's layer carries a fixed time, not the time of the bake (2000-01-01 UTC)
+    info = zipfile.ZipFile(tmp_path / "a.usdz").infolist()[0]
+    assert info.date_time[:2] in ((2000, 1), (1999, 12))

@@ -40,6 +40,10 @@ _STAGE_METADATA = (
 )
 
 
+#: Modification time given to the package's root layer (2000-01-01 UTC), in seconds.
+_PACKAGE_MTIME = 946684800
+
+
 def usd_source(surface) -> Path | None:
     """The USD file a surface was read from (its prims can be overlaid), else None."""
     path = surface.metadata.get("path")
@@ -161,6 +165,8 @@ def write_usdz(
             )
             _export(flat, inner)
             del flat
+        # the package records file times: a fixed one keeps same inputs bit-identical
+        os.utime(inner, (_PACKAGE_MTIME, _PACKAGE_MTIME))
         try:
             ok = UsdUtils.CreateNewUsdzPackage(Sdf.AssetPath(str(inner)), str(tmp), name)
         except Exception as exc:  # Tf.ErrorException
