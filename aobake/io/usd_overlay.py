@@ -40,8 +40,10 @@ _STAGE_METADATA = (
 )
 
 
-#: Modification time given to the package's root layer (2000-01-01 UTC), in seconds.
-_PACKAGE_MTIME = 946684800
+#: MS-DOS date (2000-01-01) and time (00:00) written into every package entry, in
+#: place of the clock time the packager records, so the same inputs give the same bytes.
+_ZIP_DATE = (2000 - 1980) << 9 | 1 << 5 | 1
+_ZIP_TIME = 0
 
 
 def usd_source(surface) -> Path | None:
@@ -165,14 +167,13 @@ def write_usdz(
             )
             _export(flat, inner)
             del flat
-        # the package records file times: a fixed one keeps same inputs bit-identical
-        os.utime(inner, (_PACKAGE_MTIME, _PACKAGE_MTIME))
         try:
             ok = UsdUtils.CreateNewUsdzPackage(Sdf.AssetPath(str(inner)), str(tmp), name)
         except Exception as exc:  # Tf.ErrorException
             raise OutputError(f"{path.name}: USD cannot write the package ({exc})") from None
         if not ok:
             raise OutputError(f"{path.name}: USD failed to write the package")
+        _fix_zip_times(tmp)
 
 
 # -- shared ------------------------------------------------------------------------------
@@ -299,6 +300,31 @@ def _author_primvar(spec, prim, name: str, value_type, value) -> None:
             spec, indices_name, Sdf.ValueTypeNames.IntArray
         )
         indices.default = Sdf.ValueBlock()
+
+
+def _fix_zip_times(path: Path) -> None:
+    """Overwrite the date and time fields of every zip entry in place (same sizes, so the
+    package's 64-byte data alignment and its CRCs are untouched)."""
+    import struct
+    import zipfile
+
+    with zipfile.ZipFile(path) as archive:
+        infos = archive.infolist()
+        directory = archive.start_dir
+    data = bytearray(path.read_bytes())
+    stamp = struct.pack("<HH", _ZIP_TIME, _ZIP_DATE)
+    for info in infos:  # local file headers: signature, version, flags, method, time, date
+        if data[info.header_offset : info.header_offset + 4] != b"PK\x03\x04":
+            raise OutputError(f"{path.name}: unexpected package layout")
+        data[info.header_offset + 10 : info.header_offset + 14] = stamp
+    offset = directory
+    for _ in infos:  # central directory: signature, made by, needed, flags, method, time, date
+        if data[offset : offset + 4] != b"PK\x01\x02":
+            raise OutputError(f"{path.name}: unexpected package layout")
+        data[offset + 12 : offset + 16] = stamp
+        name, extra, comment = struct.unpack("<HHH", data[offset + 28 : offset + 34])
+        offset += 46 + name + extra + comment
+    path.write_bytes(bytes(data))
 
 
 def _export(layer, path: Path) -> None:
