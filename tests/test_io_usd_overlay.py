@@ -496,3 +496,20 @@ def test_same_inputs_give_identical_files(tmp_path):
     archive = zipfile.ZipFile(tmp_path / "a.usdz")
     assert {info.date_time for info in archive.infolist()} == {(2000, 1, 1, 0, 0, 0)}
     assert archive.testzip() is None
+
+
+def test_list_of_names_in_custom_data(tmp_path):
+    # the pipeline records --field files as a list: it was refused with a traceback
+    from aobake.io import write_bake
+
+    source, _, _ = _scene(tmp_path)
+    surface = load_mesh(source)
+    ao = np.ones(surface.n_vertices)
+    data = {"method": "embree", "fields": ["rock.npz", "tree.npz"]}
+    write_bake(tmp_path / "own.usda", surface_from_arrays(surface.positions, surface.faces), ao, custom_data=data)
+    write_bake(tmp_path / "over.usda", surface, ao, custom_data=data)
+    stage = Usd.Stage.Open(str(tmp_path / "own.usda"))
+    own = stage.GetPrimAtPath("/Root").GetCustomDataByKey("aobake")
+    assert list(own["fields"]) == ["rock.npz", "tree.npz"]
+    layer = Sdf.Layer.OpenAsAnonymous(str(tmp_path / "over.usda"))
+    assert list(layer.customLayerData["aobake"]["fields"]) == ["rock.npz", "tree.npz"]

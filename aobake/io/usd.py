@@ -226,7 +226,8 @@ def _anchored(asset: str, layer_path: Path) -> str:
 
 
 def _clean_custom_data(custom_data) -> dict:
-    """Check ``custom_data`` maps str to str, float, int or bool; return plain Python values."""
+    """Check ``custom_data`` maps str to str, float, int, bool or a list of str; return
+    values USD stores (plain Python, lists as ``Vt.StringArray``)."""
     if custom_data is None:
         return {}
     out = {}
@@ -243,9 +244,14 @@ def _clean_custom_data(custom_data) -> dict:
             out[key] = value
         elif isinstance(value, float):
             out[key] = value
+        elif isinstance(value, list | tuple) and all(isinstance(v, str) for v in value):
+            from pxr import Vt
+
+            out[key] = Vt.StringArray(list(value))  # e.g. the --field files
         else:
             raise ValueError(
-                f"custom_data[{key!r}] must be str, float, int or bool, got {type(value).__name__}"
+                f"custom_data[{key!r}] must be str, float, int, bool or a list of str, "
+                f"got {type(value).__name__}"
             )
     return out
 
