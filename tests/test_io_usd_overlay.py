@@ -358,6 +358,10 @@ def test_instances_get_their_own_ao(tmp_path):
     got = [_ao(composed, p) for p in order]
     np.testing.assert_array_equal(np.concatenate(got), expected)
     assert not np.array_equal(got[1], got[2])  # the resting box is darker at its foot
+    copy = tmp_path / "inst_copy.usdc"
+    _bake(path, copy, overlay=False)
+    flat = Usd.Stage.Open(str(copy))
+    np.testing.assert_array_equal(np.concatenate([_ao(flat, p) for p in order]), expected)
 
 
 def test_indexed_display_color_of_the_source_is_replaced(tmp_path):
@@ -410,10 +414,11 @@ def test_time_samples_baked_at_time(tmp_path):
     composed = Usd.Stage.Open(str(out))
     np.testing.assert_array_equal(np.concatenate([_ao(composed, "/World/floor"), _ao(composed, "/World/box")]), expected)
     assert Sdf.Layer.OpenAsAnonymous(str(out)).customLayerData["aobake"]["time"] == 10.0
-    # the animation itself is the source's, at the source's time scale
-    np.testing.assert_allclose(
-        np.asarray(composed.GetPrimAtPath("/World/box").GetAttribute("points").Get(10.0)), box[10.0]
-    )
+    # the animation itself is the source's, at the source's time scale (30 per second:
+    # under a root layer at the default 24 the samples would move to 0.8 and 8)
+    points = composed.GetPrimAtPath("/World/box").GetAttribute("points")
+    for t in (1.0, 10.0):
+        np.testing.assert_allclose(np.asarray(points.Get(t)), box[t])
 
 
 def test_time_samples_without_time_read_at_the_earliest_sample(tmp_path):
