@@ -320,6 +320,7 @@ def test_usdz_from_a_non_usd_input(tmp_path):
     _bake(ply, tmp_path / "plate.usdz")
     stage = Usd.Stage.Open(str(tmp_path / "plate.usdz"))
     np.testing.assert_array_equal(_ao(stage, "/Root/plate"), np.ones(len(points), dtype=np.float32))
+    assert stage.GetRootLayer().customLayerData["aobake"]["source"] == "plate.ply"
 
 
 # -- instancing, indexed primvars, time samples ---------------------------------------------

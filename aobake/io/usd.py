@@ -83,7 +83,8 @@ def write_usd(
         Stage ``metersPerUnit`` (> 0); 1.0 means the mesh units are meters.
     custom_data : mapping of str to str, float, int or bool, optional
         Recorded as ``customData["aobake"]`` on ``/Root`` and on every mesh (method,
-        parameters, seed, aobake version...).
+        parameters, seed, aobake version...), and as the layer's
+        ``customLayerData["aobake"]``.
 
     Raises
     ------
@@ -355,6 +356,8 @@ def _author_stage(
         stage.SetDefaultPrim(root)
         if custom_data:
             root.SetCustomDataByKey(CUSTOM_DATA_KEY, custom_data)
+            # also on the layer, where overlays and full copies record their source
+            stage.GetRootLayer().customLayerData = {CUSTOM_DATA_KEY: custom_data}
         for arrays in meshes:
             _author_mesh(
                 stage, f"{ROOT_PATH}/{arrays['name']}", arrays, color, custom_data, Sdf, UsdGeom, Vt
