@@ -84,13 +84,16 @@ class BakeReport:
 def as_surface(mesh: Any, time: float | None = None) -> Surface:
     """A :class:`Surface` from a path, a ``trimesh.Trimesh``/``Scene``, or a Surface
     (``time``: the USD time code to read a path at)."""
+    if isinstance(mesh, (str, Path)):
+        from .io import load_mesh
+
+        return load_mesh(mesh, time=time)
+    if time is not None:
+        raise ValueError("time applies to USD files only; got a loaded mesh")
     if isinstance(mesh, Surface):
         return mesh
-    from .io import load_mesh
     from .io.trimesh_formats import mesh_from_trimesh
 
-    if isinstance(mesh, (str, Path)):
-        return load_mesh(mesh, time=time)
     return mesh_from_trimesh(mesh)
 
 
