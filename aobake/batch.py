@@ -74,6 +74,8 @@ class Settings:
     fields: tuple = ()
     channel: str | None = None
     weld: bool = False
+    time: float | None = None
+    overlay: bool | None = None
 
     def bake_kwargs(self, threads: int | None) -> dict:
         options = dict(self.options)
@@ -87,6 +89,8 @@ class Settings:
             fields=self.fields,
             channel=self.channel,
             weld=self.weld,
+            time=self.time,
+            overlay=self.overlay,
             **options,
         )
 
@@ -217,6 +221,8 @@ def settings_key(settings: Settings, formats: Sequence[str]) -> tuple[dict, str]
         "meters_per_unit": settings.meters_per_unit,
         "channel": settings.channel,
         "weld": settings.weld,
+        "time": settings.time,
+        "overlay": settings.overlay,
         "fields": [
             {"file": Path(f).name, "sha256": file_hash(f), "placement": None if p is None else list(p)}
             for f, p in (_field_parts(item) for item in settings.fields)
@@ -389,10 +395,10 @@ def part_task(job: Job, settings: Settings, part: tuple, slots: dict):
     from .pipeline import bake_part
 
     kw = settings.bake_kwargs(_worker_threads(slots))
-    for name in ("color", "up_axis", "meters_per_unit", "fields", "channel", "weld"):
+    for name in ("color", "up_axis", "meters_per_unit", "fields", "channel", "weld", "overlay"):
         kw.pop(name)
     try:
-        surface = load_mesh(job.source)
+        surface = load_mesh(job.source, time=kw.pop("time"))
         return bake_part(surface, parts=part, **kw), surface if part[0] == 0 else None
     except AobakeError as exc:
         return _Failure(str(exc))
@@ -670,6 +676,10 @@ def bake_arguments(settings: Settings) -> list[str]:
         args += ["--channel", settings.channel]
     if settings.weld:
         args.append("--weld")
+    if settings.time is not None:
+        args += ["--time", repr(settings.time)]
+    if settings.overlay is not None:
+        args.append("--overlay" if settings.overlay else "--no-overlay")
     if settings.up_axis:
         args += ["--up", settings.up_axis]
     if settings.meters_per_unit:

@@ -321,6 +321,21 @@ _BAKE_OPTIONS = [
         help="USD metersPerUnit, PLY comment, glTF root scale [default: the input's, else 1].",
     ),
     click.option(
+        "--overlay/--no-overlay",
+        default=None,
+        help="USD input to .usda/.usdc/.usd: write a layer over the source holding only ao "
+        "(sublayers it by relative path), or a full flattened copy with ao "
+        "[default: overlay]. .usdz is always a flattened package.",
+    ),
+    click.option(
+        "--time",
+        "time_code",
+        type=NumberRange(),
+        default=None,
+        help="USD input: read animated points and transforms at this time code "
+        "[default: the default time; geometry with only time samples: its earliest sample].",
+    ),
+    click.option(
         "--field",
         "fields",
         multiple=True,
@@ -341,15 +356,16 @@ _BAKE_OPTIONS = [
     required=True,
     multiple=True,
     type=click.Path(path_type=Path),
-    help="Output .ply, .usda, .usdc, .usd, .gltf or .glb (repeat for several formats from one bake).",
+    help="Output .ply, .usda, .usdc, .usd, .usdz, .gltf or .glb (repeat for several formats from one bake).",
 )
 @bake_options
-def bake(mesh, output, method, color, channel, weld, up, meters_per_unit, fields, quiet, **given):
+def bake(mesh, output, method, color, channel, weld, up, meters_per_unit, overlay, time_code, fields, quiet, **given):
     """Bake AO of MESH into OUTPUT as the per-vertex attribute `ao`.
 
     `ao` = 1 - A: 1 = fully open, 0 = fully occluded. MESH: PLY, OBJ, STL, OFF,
     GLB/glTF or USD; vertex count and order are kept. With --field, the mesh's own AO
-    is multiplied by each occluder's: 1 - A = (1 - A_self) prod (1 - A_k).
+    is multiplied by each occluder's: 1 - A = (1 - A_self) prod (1 - A_k). A USD
+    input baked to USD gives an overlay: the source with primvars:ao added, by layering.
     """
     from .pipeline import bake_file
     from .progress import make_progress
@@ -368,6 +384,8 @@ def bake(mesh, output, method, color, channel, weld, up, meters_per_unit, fields
             meters_per_unit=meters_per_unit,
             progress=make_progress(quiet),
             fields=fields,
+            time=time_code,
+            overlay=overlay,
             **_method_options(method, given),
         )
     if not quiet:
@@ -413,7 +431,7 @@ def bake(mesh, output, method, color, channel, weld, up, meters_per_unit, fields
 @bake_options
 def batch(
     paths, outdir, formats, workers, scheduler, split, retries, force, emit_commands,
-    method, color, channel, weld, up, meters_per_unit, fields, quiet, **given,
+    method, color, channel, weld, up, meters_per_unit, overlay, time_code, fields, quiet, **given,
 ):  # fmt: skip
     """Bake every mesh PATHS name into OUTDIR on a Dask cluster, skipping what is up to date.
 
@@ -454,6 +472,8 @@ def batch(
         up_axis=up,
         meters_per_unit=meters_per_unit,
         fields=tuple(fields),
+        time=time_code,
+        overlay=overlay,
     )
     if emit_commands:
         for line in emit(paths, outdir, formats=exts, settings=settings, force=force):

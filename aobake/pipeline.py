@@ -7,10 +7,10 @@ from __future__ import annotations
 
 import contextlib
 import math
-import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from time import perf_counter
 from typing import Any
 
 import numpy as np
@@ -19,7 +19,7 @@ from . import __version__
 from ._types import AOArray
 from .constants import DEFAULT_METERS_PER_UNIT, DEFAULT_UP_AXIS
 from .errors import FormatError, InputError, NumericalError, OutputError
-from .io import check_output_dir, output_kind
+from .io import check_output_dir, usd_output_mode
 from .io.common import check_not_input, output_name
 from .mesh import Surface
 from .methods import METHODS
@@ -48,6 +48,8 @@ class BakeReport:
         Time spent evaluating the fields (not in ``seconds``; compiling excluded).
     compile_seconds : float
         Time numba spent compiling kernels (a cold cache: the first run), in neither.
+    note : str
+        What the summary adds about the input, e.g. the time an animated USD was read at.
     """
 
     source: str
@@ -61,6 +63,7 @@ class BakeReport:
     field_skipped: tuple = ()
     field_seconds: float = 0.0
     compile_seconds: float = 0.0
+    note: str = ""
 
     def summary(self) -> str:
         """One line: vertices, rays, seconds, rays per second, compile time if any."""
@@ -78,18 +81,24 @@ class BakeReport:
                 f", x {len(self.field_skipped)} field(s) in {self.field_seconds:.2f} s"
                 f" ({skipped} receivers beyond r_far)"
             )
+        if self.note:
+            text += f", {self.note}"
         return text + compile_note(self.compile_seconds) + f" -> {self.output}"
 
 
-def as_surface(mesh: Any) -> Surface:
-    """A :class:`Surface` from a path, a ``trimesh.Trimesh``/``Scene``, or a Surface."""
+def as_surface(mesh: Any, time: float | None = None) -> Surface:
+    """A :class:`Surface` from a path, a ``trimesh.Trimesh``/``Scene``, or a Surface
+    (``time``: the USD time code to read a path at)."""
+    if isinstance(mesh, (str, Path)):
+        from .io import load_mesh
+
+        return load_mesh(mesh, time=time)
+    if time is not None:
+        raise ValueError("time applies to USD files only; got a loaded mesh")
     if isinstance(mesh, Surface):
         return mesh
-    from .io import load_mesh
     from .io.trimesh_formats import mesh_from_trimesh
 
-    if isinstance(mesh, (str, Path)):
-        return load_mesh(mesh)
     return mesh_from_trimesh(mesh)
 
 
@@ -156,10 +165,12 @@ def bake_file(
     fields: Sequence = (),
     channel: str | None = None,
     weld: bool = False,
+    time: float | None = None,
+    overlay: bool | None = None,
     **options,
 ) -> BakeReport:
-    """Load ``source``, bake it once, write ``output`` (.ply, .usda, .usdc, .usd, .gltf or
-    .glb) atomically.
+    """Load ``source``, bake it once, write ``output`` (.ply, .usda, .usdc, .usd, .usdz,
+    .gltf or .glb) atomically.
 
     ``output`` may be several paths (one bake, several formats). Suffixes and
     directories are checked before loading or computing, so a typo fails at once;
@@ -179,20 +190,26 @@ def bake_file(
     mesh with coincident vertices of each part merged
     (:func:`aobake.mesh.weld_vertices`), written back per input vertex.
 
+    USD input: ``time`` is the time code points and transforms are read at (default:
+    USD's default time, see :func:`aobake.io.load_mesh`). A USD output of a USD input is
+    an overlay layer over ``source`` unless ``overlay=False`` (a full flattened copy);
+    ``.usdz`` is a flattened package (:func:`aobake.io.usd_output_mode`).
+
     Returns
     -------
     BakeReport
     """
     from .io import check_outputs
 
-    outputs = _check_outputs(output, source)
+    outputs = _check_outputs(output, source, overlay)
     placed = _load_fields(fields)
-    surface = as_surface(source)
+    surface = as_surface(source, time)
     check_outputs(surface, outputs, channel)
     part = _bake_range(surface, method, options, progress, None, weld=weld)
     return _write(
-        source, surface, outputs, [part], method, options, placed, color, up_axis, meters_per_unit, channel, weld
-    )
+        source, surface, outputs, [part], method, options, placed, color, up_axis, meters_per_unit,
+        channel, weld, overlay,
+    )  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -256,6 +273,8 @@ def write_parts(
     fields: Sequence = (),
     surface: Surface | None = None,
     channel: str | None = None,
+    time: float | None = None,
+    overlay: bool | None = None,
     **options,
 ) -> BakeReport:
     """Stitch the ranges of :func:`bake_part` in order and write them like :func:`bake_file`.
@@ -264,9 +283,9 @@ def write_parts(
     bytes :func:`bake_file` writes with the same arguments (``seconds`` is the parts'
     sum, their compute time). ``surface``: ``source`` already loaded (not read again).
     """
-    outputs = _check_outputs(output, source)
+    outputs = _check_outputs(output, source, overlay)
     placed = _load_fields(fields)
-    surface = as_surface(source) if surface is None else surface
+    surface = as_surface(source, time) if surface is None else surface
     expected = 0
     for part in parts:
         if part.vertices[0] != expected:
@@ -277,27 +296,34 @@ def write_parts(
     from .io import check_outputs
 
     check_outputs(surface, outputs, channel)
-    return _write(source, surface, outputs, parts, method, options, placed, color, up_axis, meters_per_unit, channel)
+    return _write(
+        source, surface, outputs, parts, method, options, placed, color, up_axis, meters_per_unit,
+        channel, False, overlay,
+    )  # fmt: skip
 
 
-def _check_outputs(output, source) -> list[Path]:
-    """Output paths, with suffixes and directories checked before any work (none may be
-    the input)."""
+def _check_outputs(output, source, overlay: bool | None = None) -> list[Path]:
+    """Output paths, with suffixes, USD output modes and directories checked before any
+    work (none may be the input)."""
     outputs = [Path(output)] if isinstance(output, (str, Path)) else [Path(o) for o in output]
     if not outputs:
         raise ValueError("no output path given")
+    usd_input = _is_usd(source)
     for path in outputs:
-        output_kind(path)
+        mode = usd_output_mode(path, usd_input, overlay)
         check_output_dir(path)
         check_not_input(path, [source])
+        if mode == "overlay" and isinstance(source, (str, Path)) and Path(path).resolve() == Path(source).resolve():
+            raise OutputError(f"{Path(path).name}: is the USD source itself; write the overlay to a new file")
     return outputs
+
 
 
 def _bake_range(surface: Surface, method: str, options: dict, progress, vertices, *, weld: bool = False) -> PartResult:
     """Run ``method`` on ``vertices`` (None: all); compiling kernels is kept out of the time.
     ``weld``: bake the welded mesh (whole meshes only), results per input vertex."""
     with CompileWatch() as watch:
-        t0 = time.perf_counter()
+        t0 = perf_counter()
         if weld:
             from .mesh import weld_vertices
 
@@ -308,14 +334,15 @@ def _bake_range(surface: Surface, method: str, options: dict, progress, vertices
             ao = np.asarray(ao)[inverse]
         else:
             ao, n_rays, contacts = _compute(surface, method, options, progress, vertices)
-        seconds = time.perf_counter() - t0 - watch.seconds
+        seconds = perf_counter() - t0 - watch.seconds
     lo, hi = (0, surface.n_vertices) if vertices is None else vertices
     return PartResult((lo, hi), ao, n_rays, contacts, seconds, watch.seconds)
 
 
 def _write(
-    source, surface, outputs, parts, method, options, placed, color, up_axis, meters_per_unit, channel=None, weld=False
-) -> BakeReport:
+    source, surface, outputs, parts, method, options, placed, color, up_axis, meters_per_unit,
+    channel=None, weld=False, overlay=None,
+) -> BakeReport:  # fmt: skip
     """Fields applied, checks, every output written atomically (all or none)."""
     from .io import atomic_write, write_bake
 
@@ -323,10 +350,10 @@ def _write(
     seconds = sum(p.seconds for p in parts)
     skipped: tuple = ()
     with CompileWatch() as watch:
-        t0 = time.perf_counter()
+        t0 = perf_counter()
         if placed:
             ao, skipped = _apply_fields(surface, ao, placed, options.get("threads"))
-        field_seconds = time.perf_counter() - t0 - watch.seconds
+        field_seconds = perf_counter() - t0 - watch.seconds
     if ao.shape != (surface.n_vertices,):
         raise NumericalError(f"{surface.source}: {method} returned {ao.shape} values for {surface.n_vertices} vertices")
     custom = {"method": method, "version": __version__, "source": Path(str(source)).name}
@@ -353,6 +380,7 @@ def _write(
                 custom_data=custom,
                 up_axis=up_axis or meta.get("up_axis") or DEFAULT_UP_AXIS,
                 meters_per_unit=meters_per_unit or meta.get("meters_per_unit") or DEFAULT_METERS_PER_UNIT,
+                overlay=overlay,
             )
     return BakeReport(
         source=Path(str(source)).name,
@@ -366,7 +394,26 @@ def _write(
         field_skipped=skipped,
         field_seconds=field_seconds if placed else 0.0,
         compile_seconds=watch.seconds + sum(p.compile_seconds for p in parts),
+        note=_time_note(meta),
     )
+
+
+def _is_usd(source: Any) -> bool:
+    """Whether ``source`` is a USD file (by suffix) or a surface read from one."""
+    from .io.usd_overlay import usd_source
+
+    if isinstance(source, Surface):
+        return usd_source(source) is not None
+    return isinstance(source, (str, Path)) and Path(source).suffix.lower() in (".usd", ".usda", ".usdc", ".usdz")
+
+
+def _time_note(meta: dict) -> str:
+    """"2 animated meshes read at time 12" when a USD input has time samples, else ""."""
+    animated = meta.get("animated", 0)
+    if not animated:
+        return ""
+    when = "the default time" if meta.get("time") is None else f"time {meta['time']:g}"
+    return f"{animated} animated mesh{'es' if animated > 1 else ''} read at {when}"
 
 
 def compare_files(
@@ -817,7 +864,7 @@ def warm_up(progress: Progress | None = None) -> WarmUpReport:
 
     steps = []
     with CompileWatch() as watch, tempfile.TemporaryDirectory(prefix="aobake-warm-up-") as tmp:
-        t0 = time.perf_counter()
+        t0 = perf_counter()
         d = Path(tmp)
         positions, faces = warm_up_scene()
         trimesh.Trimesh(positions, faces, process=False).export(d / "scene.ply")
@@ -836,5 +883,5 @@ def warm_up(progress: Progress | None = None) -> WarmUpReport:
         steps.append("bake --field")
         preview_file(d / f"{METHODS[0]}.ply", d / "preview.png", size=16)
         steps.append("preview")
-        seconds = time.perf_counter() - t0
+        seconds = perf_counter() - t0
     return WarmUpReport(steps=tuple(steps), seconds=seconds, compile_seconds=watch.seconds, kernels=watch.count)

@@ -23,7 +23,15 @@ import numpy as np
 from ..errors import FormatError, InputError, NumericalError, OutputError
 
 #: Output suffixes and the writer family that handles them.
-BAKE_SUFFIXES = {".ply": "ply", ".usda": "usd", ".usdc": "usd", ".usd": "usd", ".glb": "gltf", ".gltf": "gltf"}
+BAKE_SUFFIXES = {
+    ".ply": "ply",
+    ".usda": "usd",
+    ".usdc": "usd",
+    ".usd": "usd",
+    ".usdz": "usdz",
+    ".glb": "gltf",
+    ".gltf": "gltf",
+}
 
 
 def output_name(path: str | Path) -> str:
@@ -35,7 +43,7 @@ def output_name(path: str | Path) -> str:
 
 
 def output_kind(path: str | Path) -> str:
-    """Return ``"ply"``, ``"usd"`` or ``"gltf"`` for an output path, or raise :class:`FormatError`.
+    """Return ``"ply"``, ``"usd"``, ``"usdz"`` or ``"gltf"`` for an output path, or raise :class:`FormatError`.
 
     Called before any computation so a typo in ``-o`` fails fast.
     """
