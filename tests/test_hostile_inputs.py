@@ -284,7 +284,7 @@ def test_ray_chunks_bounded_and_complete(n_active, j0, j1, chunk):
     for v in active.tolist():  # each vertex's ranges tile [j0, j1) in order
         ranges = seen[v]
         assert ranges[0][0] == j0 and ranges[-1][1] == j1
-        assert all(r[1] == s[0] for r, s in zip(ranges, ranges[1:]))
+        assert all(r[1] == s[0] for r, s in zip(ranges[:-1], ranges[1:], strict=True))
 
 
 @pytest.mark.parametrize("threads", [1, 3])
