@@ -323,3 +323,19 @@ def test_float32_corner_on_a_floor_vertex_reads_closed(shift):
         ao[dtype] = embree_ao(s, n_rays=64).ao[bottom]
     assert ao[np.float32].max() < 0.3
     assert np.abs(ao[np.float32] - ao[np.float64]).max() <= 2 / 64
+
+
+# -- memory: previews in bands of rows ------------------------------------------------------
+
+
+@pytest.mark.parametrize("size,band", [(97, 256), (97, 1), (130, 7), (64, 64)])
+def test_preview_bands_give_the_same_file(size, band):
+    # Rendering a band of rows at a time (bounded memory at --size 8192) writes the very
+    # bytes of the whole-image render.
+    from aobake.tools.preview import grey, png_bytes, preview_png, render_values
+
+    s, _ = scenes.sphere_on_ground(0.5, 2, gap=0.0, cells=6)
+    values = np.linspace(0.0, 1.0, s.n_vertices)
+    whole = png_bytes(grey(render_values(s.positions, s.faces, values, size=size, up="Z", view="iso")))
+    banded = preview_png(s.positions, s.faces, values, size=size, band_rows=band, up="Z", view="iso")
+    assert banded == whole
