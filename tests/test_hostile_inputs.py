@@ -339,3 +339,31 @@ def test_preview_bands_give_the_same_file(size, band):
     whole = png_bytes(grey(render_values(s.positions, s.faces, values, size=size, up="Z", view="iso")))
     banded = preview_png(s.positions, s.faces, values, size=size, band_rows=band, up="Z", view="iso")
     assert banded == whole
+
+
+# -- the disk method on needles --------------------------------------------------------------
+
+NEEDLES = (
+    # a needle and an almost collinear sliver (edges 1e-9 of the scene): in the disk
+    # method's float32 terms the receiver's own disk, lifted 1e-4 disk radii above it,
+    # gave r^2 (pi r^2 + A) = 0 and 0 / 0 = NaN (found by fuzzing needles at 1e30)
+    [
+        [0.18727186130468504, -0.27374465076469623, 0.23181086176796964],
+        [0.46368160251798635, -0.31610307696995754, 0.19020606393998638],
+        [0.3201183961274917, -0.2941027254013409, 0.21181499187138172],
+        [0.5109625645468612, 0.4252309099879812, 0.10855601724430916],
+        [1.3002006222224844, -1.3568628461535328, 0.06167850530018773],
+        [2.089438679898108, -3.138956602295048, 0.01480099335606627],
+    ],
+    [[0, 1, 2], [3, 4, 5]],
+)
+
+
+@pytest.mark.parametrize("scale", [1.0, 1e30])
+@pytest.mark.parametrize("options", [{}, {"passes": 2}, {"near": 0.0}])
+def test_disk_method_finite_on_needles(scale, options):
+    positions, faces = NEEDLES
+    s = surface_from_arrays(np.array(positions) * scale, faces)
+    ao = np.asarray(aobake.bake(s, "bunnell", **options))
+    # the two slivers lie far apart and nearly edge-on to each other: every vertex is open
+    np.testing.assert_array_equal(ao, 1.0)
