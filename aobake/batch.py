@@ -474,7 +474,7 @@ def _start_client(scheduler: str | None, workers: int | None, retries: int):
             n_workers=workers,
             threads_per_worker=1,
             processes=True,
-            dashboard_address=None,
+            dashboard_address="127.0.0.1:0",
             silence_logs=logging.CRITICAL,
         )
     finally:
