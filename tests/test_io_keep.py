@@ -253,3 +253,26 @@ def test_channel_for_an_input_without_kept_colours_is_refused_before_baking(tmp_
         assert result.exit_code == 1
         assert result.output == "Error: soup.stl: --channel B: the mesh has no vertex colours to write into\n"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["soup.stl"]
+
+
+def test_ply_to_gltf_carries_uvs_and_colours(tmp_path):
+    import gltf_assets as ga
+
+    v, _ = _rich_ply(tmp_path / "in.ply")
+    surface = load_mesh(tmp_path / "in.ply")
+    write_bake(tmp_path / "o.glb", surface, AO)
+    write_bake(tmp_path / "g.glb", surface, AO, channel="G")
+    gl, blobs = ga.load(tmp_path / "o.glb")
+    attributes = gl["meshes"][0]["primitives"][0]["attributes"]
+    uv = ga.accessor(gl, blobs, attributes["TEXCOORD_0"])
+    np.testing.assert_array_equal(uv, np.c_[v["s"], 1.0 - v["t"].astype(np.float64)].astype(np.float32))
+    colors = ga.accessor(gl, blobs, attributes["COLOR_0"])  # linear floats: what viewers showed
+    rgb = np.c_[v["red"], v["green"], v["blue"]] / 255.0
+    np.testing.assert_allclose(colors[:, :3], ((rgb + 0.055) / 1.055) ** 2.4 * (rgb > 0.04045) + rgb / 12.92 * (rgb <= 0.04045), rtol=1e-6)
+    np.testing.assert_allclose(colors[:, 3], v["alpha"] / 255.0, rtol=1e-6)
+    np.testing.assert_array_equal(ga.accessor(gl, blobs, attributes["_AO"])[:, 0], AO.astype(np.float32))
+    gl, blobs = ga.load(tmp_path / "g.glb")
+    index = gl["meshes"][0]["primitives"][0]["attributes"]["COLOR_0"]
+    packed = ga.accessor(gl, blobs, index)
+    assert packed.dtype == np.uint8 and gl["accessors"][index]["normalized"] is True
+    np.testing.assert_array_equal(packed, np.c_[v["red"], np.rint(AO * 255), v["blue"], v["alpha"]])

@@ -265,6 +265,8 @@ def check_outputs(surface: Surface, outputs, channel: str | None = None) -> None
                 raise InputError(surface.source, f"--channel {channel}: the mesh has no vertex colours (red green blue)")
         elif kind == "gltf" and surface.metadata.get("gltf_path"):
             gltf.check_channel(gltf.read_document(surface.metadata["gltf_path"]), channel)
+        elif kind == "gltf" and gltf.ply_has_colors(surface):
+            pass
         else:
             raise InputError(surface.source, f"--channel {channel}: the mesh has no vertex colours to write into")
 

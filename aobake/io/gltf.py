@@ -26,7 +26,7 @@ from urllib.parse import quote, unquote
 import numpy as np
 
 from ..errors import InputError, OutputError
-from .color import CHANNELS, quantize
+from .color import CHANNELS, quantize, srgb_to_linear
 from .common import atomic_write, check_ao
 
 log = logging.getLogger(__name__)
@@ -312,8 +312,9 @@ def write_gltf(
     by several nodes is given one copy per further node, sharing every accessor but
     ``_AO`` and ``COLOR_0``: each instance keeps its own AO. Other inputs get a new
     document: one node and mesh per part with POSITION, NORMAL, triangle indices,
-    ``_AO`` (and ``COLOR_0``), under a root node turning Z-up into glTF's Y-up and
-    scaling to metres. Provenance goes into ``asset.extras.aobake``.
+    ``_AO`` (and ``COLOR_0``), a PLY input's UVs and colours too, under a root node
+    turning Z-up into glTF's Y-up and scaling to metres. Provenance goes into
+    ``asset.extras.aobake``.
 
     Raises
     ------
@@ -332,13 +333,15 @@ def write_gltf(
         gl = copy.deepcopy(doc.json)
         blob = _Blob(gl, len(gl.setdefault("buffers", [])))
         _add_ao(doc, gl, blob, surface, ao32, color=color, channel=channel)
-    elif channel is not None:
-        raise InputError(surface.source, f"--channel {channel}: the mesh has no vertex colours for glTF output")
+    elif channel is not None and not ply_has_colors(surface):
+        raise InputError(surface.source, f"--channel {channel}: the mesh has no vertex colours to write into")
     else:
         doc = None
         gl = {"asset": {"version": "2.0"}, "buffers": []}
         blob = _Blob(gl, 0)
-        _new_document(gl, blob, surface, ao32, color=color, up_axis=up_axis, meters_per_unit=meters_per_unit)
+        _new_document(
+            gl, blob, surface, ao32, color=color, channel=channel, up_axis=up_axis, meters_per_unit=meters_per_unit
+        )
     asset = gl.setdefault("asset", {"version": "2.0"})
     extras = asset.setdefault("extras", {})
     if isinstance(extras, dict) and custom_data:
@@ -388,8 +391,52 @@ def _packed_colors(doc: Document, blob: _Blob, index: int | None, values, channe
     return blob.accessor(colors, normalized=a.get("normalized", False))
 
 
-def _new_document(gl, blob, surface, ao32, *, color, up_axis, meters_per_unit) -> None:
-    """One node, mesh and primitive per part, positions relative to the part's centre."""
+#: PLY texture-coordinate property pairs, in the order they are looked for.
+PLY_UV_NAMES = (("s", "t"), ("u", "v"), ("texture_u", "texture_v"), ("texture_s", "texture_t"))
+
+
+def ply_has_colors(surface) -> bool:
+    """True when the surface is a PLY input with ``red green blue`` vertex colours."""
+    kept = surface.metadata.get("ply")
+    columns = {} if kept is None else kept.data.elements["vertex"].properties
+    return len(surface.parts) == 1 and all(isinstance(columns.get(c), np.ndarray) for c in ("red", "green", "blue"))
+
+
+def _ply_attributes(blob: _Blob, surface, part, channel: str | None) -> dict:
+    """A PLY input's UVs (``TEXCOORD_0``, v flipped to glTF's top-left origin) and colours
+    (``COLOR_0`` values, not yet an accessor). Colours: 8-bit sRGB bytes become linear
+    floats (the grey a viewer showed stays the same); with ``channel`` they stay the
+    stored numbers (normalised integers), since packed channels are data."""
+    kept = surface.metadata.get("ply")
+    if kept is None or len(surface.parts) != 1:
+        return {}
+    columns = kept.data.elements["vertex"].properties
+    out: dict = {}
+    for u, v in PLY_UV_NAMES:
+        if isinstance(columns.get(u), np.ndarray) and isinstance(columns.get(v), np.ndarray):
+            uv = np.column_stack([columns[u], 1.0 - np.asarray(columns[v], dtype=np.float64)])
+            out["TEXCOORD_0"] = blob.accessor(uv.astype(np.float32))
+            break
+    if not ply_has_colors(surface):
+        return out
+    names = [c for c in ("red", "green", "blue", "alpha") if isinstance(columns.get(c), np.ndarray)]
+    stored = np.column_stack([columns[c] for c in names])
+    if channel is not None and CHANNELS[channel] >= stored.shape[1]:
+        stored = np.column_stack([stored, np.zeros(len(stored), dtype=stored.dtype)])
+    scale = float(np.iinfo(stored.dtype).max) if stored.dtype.kind in "iu" else 1.0
+    if channel is not None:  # glTF colours are ubyte, ushort or float
+        ok = stored.dtype in (np.uint8, np.uint16)
+        out["COLOR_0"] = stored if ok else np.clip(stored / scale, 0.0, 1.0).astype(np.float32)
+        return out
+    linear = np.clip(stored / scale, 0.0, 1.0)
+    linear[:, :3] = srgb_to_linear(linear[:, :3])  # alpha is not a colour: kept linear
+    out["COLOR_0"] = linear.astype(np.float32)
+    return out
+
+
+def _new_document(gl, blob, surface, ao32, *, color, channel, up_axis, meters_per_unit) -> None:
+    """One node, mesh and primitive per part, positions relative to the part's centre; a
+    PLY input's UVs and colours come along (:func:`_ply_attributes`)."""
     children = []
     gl["meshes"], gl["nodes"] = [], []
     for part in surface.parts:
@@ -400,9 +447,16 @@ def _new_document(gl, blob, surface, ao32, *, color, up_axis, meters_per_unit) -
         normals = surface.normals[s]
         if np.abs(np.linalg.norm(normals, axis=1) - 1.0).max(initial=0.0) < 1e-3:  # glTF: unit only
             attributes["NORMAL"] = blob.accessor(normals.astype(np.float32))
+        attributes.update(_ply_attributes(blob, surface, part, channel))
         attributes["_AO"] = blob.accessor(ao32[s], bounds=True)
-        if color:
+        if channel is not None:
+            colors = attributes.pop("COLOR_0")
+            colors[:, CHANNELS[channel]] = quantize(ao32[s], colors.dtype)
+            attributes["COLOR_0"] = blob.accessor(colors, normalized=colors.dtype.kind == "u")
+        elif color:
             attributes["COLOR_0"] = blob.accessor(np.repeat(ao32[s, None], 3, axis=1))
+        elif "COLOR_0" in attributes:
+            attributes["COLOR_0"] = blob.accessor(attributes["COLOR_0"])
         faces = surface.faces[part.face_start : part.face_stop] - part.vertex_start
         indices = blob.accessor(faces.reshape(-1).astype(np.uint32), target=_ELEMENT_ARRAY_BUFFER)
         gl["meshes"].append({"name": part.name, "primitives": [{"attributes": attributes, "indices": indices}]})
