@@ -7,6 +7,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from click.testing import CliRunner
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from plyfile import PlyData, PlyElement
 
 from aobake.cli import main
@@ -318,3 +320,37 @@ def test_ply_to_gltf_carries_uvs_and_colours(tmp_path):
     packed = ga.accessor(gl, blobs, index)
     assert packed.dtype == np.uint8 and gl["accessors"][index]["normalized"] is True
     np.testing.assert_array_equal(packed, np.c_[v["red"], np.rint(AO * 255), v["blue"], v["alpha"]])
+
+
+@settings(max_examples=20, deadline=None)
+@given(st.data())
+def test_kept_elements_round_trip_any_types_and_list_lengths(tmp_path_factory, data):
+    """Random extra elements (scalars of every PLY type, lists of varying lengths) come back
+    from plyfile as written, beside a fixed tetrahedron."""
+    types = ["i1", "u1", "i2", "u2", "i4", "u4", "f4", "f8"]
+    rows = data.draw(st.integers(0, 6))
+    scalar = data.draw(st.sampled_from(types))
+    item = data.draw(st.sampled_from(types))
+    counter = data.draw(st.sampled_from(["u1", "u2", "i4"]))
+    rng = np.random.default_rng(data.draw(st.integers(0, 2**32 - 1)))
+    lengths = rng.integers(0, 5, rows)
+    extra = np.empty(rows, dtype=[("k", scalar), ("items", object)])
+    extra["k"] = (rng.integers(0, 100, rows)).astype(scalar)
+    for r in range(rows):
+        extra["items"][r] = rng.integers(0, 100, lengths[r]).astype(item)
+    d = tmp_path_factory.mktemp("ply")
+    v, f = _rich_ply(d / "base.ply", text=False)
+    base = PlyData.read(str(d / "base.ply"))
+    element = PlyElement.describe(
+        extra, "extra", len_types={"items": counter}, val_types={"items": item}
+    )
+    PlyData([base["vertex"], base["face"], element], text=data.draw(st.booleans())).write(
+        str(d / "in.ply")
+    )
+    write_bake(d / "out.ply", load_mesh(d / "in.ply"), AO)
+    out = PlyData.read(str(d / "out.ply"))
+    assert out["extra"].count == rows
+    np.testing.assert_array_equal(out["extra"].data["k"], extra["k"])
+    for r in range(rows):
+        np.testing.assert_array_equal(out["extra"].data["items"][r], extra["items"][r])
+    assert out["extra"].data["k"].dtype == np.dtype(scalar)  # the type kept, not widened
