@@ -389,3 +389,21 @@ def test_a_document_changed_since_loading_is_refused_before_baking(tmp_path, mon
     with pytest.raises(OutputError, match="matches no primitive"):
         bake_file(src, [tmp_path / "o.ply", tmp_path / "o.glb"], n_rays=4)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["s.glb"]
+
+
+def test_missing_image_is_refused_before_baking_a_glb(tmp_path):
+    src = ga.write_scene(tmp_path / "s.gltf")
+    (tmp_path / "tex ture.png").unlink()
+    runner = CliRunner()
+    result = runner.invoke(main, ["bake", str(src), "-o", str(tmp_path / "o.glb"), "--rays", "4"])
+    assert result.exit_code == 1
+    assert (
+        result.output
+        == "Error: s.gltf: image 'tex%20ture.png' not found; a GLB output embeds its images\n"
+    )
+    assert not (tmp_path / "o.glb").exists()
+    # a .gltf output refers to the file where it was, as the input did
+    result = runner.invoke(
+        main, ["bake", str(src), "-o", str(tmp_path / "o.gltf"), "--rays", "4", "-q"]
+    )
+    assert result.exit_code == 0, result.output

@@ -262,6 +262,15 @@ def read_ao_gltf(path: str | Path) -> np.ndarray:
     return np.concatenate(values) if values else np.zeros(0)
 
 
+def check_images(doc: Document) -> None:
+    """Raise :class:`InputError` for an image file the document refers to but that is
+    missing (a GLB output embeds them)."""
+    for image in doc.json.get("images", []):
+        uri = image.get("uri")
+        if uri and not uri.startswith("data:") and not (doc.path.parent / unquote(uri)).is_file():
+            raise InputError(doc.path, f"image {uri!r} not found; a GLB output embeds its images")
+
+
 def check_channel(doc: Document, channel: str) -> None:
     """Raise :class:`InputError` unless every triangle primitive has ``COLOR_0``."""
     bare = {(s.mesh, s.primitive) for s in scene_slots(doc) if "COLOR_0" not in
