@@ -29,8 +29,13 @@ $(STAMP): pyproject.toml
 	$(PY) -m pip install --quiet -e '.[test,plot]'
 	@touch $@
 
-bake: $(STAMP) ## Bake every mesh in data/ into out/ (PLY and USD)
-	@$(MAKE) --no-print-directory batch IN=data OUT=out
+# Compiles the kernels once (aobake warm-up, quick when cached), then says what it baked
+# ("baked data/x.ply -> ..."), or that nothing needed baking.
+bake: $(STAMP) ## Compile the kernels once (aobake warm-up), then bake every mesh in data/ into out/ (PLY and USD)
+	@$(AOBAKE) warm-up
+	@if $(MAKE) -q --no-print-directory batch IN=$(IN) OUT=$(OUT); then \
+	  echo "$(OUT)/ is up to date ($(words $(STEMS)) meshes)"; \
+	else $(MAKE) --no-print-directory batch IN=$(IN) OUT=$(OUT); fi
 
 batch: $(STAMP) $(OUT_PLY) $(OUT_USD) ## Bake IN=dir into OUT=dir (parallel with -j, only what changed)
 
@@ -38,12 +43,13 @@ batch: $(STAMP) $(OUT_PLY) $(OUT_USD) ## Bake IN=dir into OUT=dir (parallel with
 # input suffix, so data/x.obj and data/x.ply map to out/x.* (the first found wins).
 define BAKE_RULE
 $$(OUT)/%.ply $$(OUT)/%.usda &: $$(IN)/%.$(1) $$(STAMP) | $$(OUT)
-	$$(AOBAKE) bake $$< -o $$(OUT)/$$*.ply -o $$(OUT)/$$*.usda $$(BAKE_FLAGS)
+	@$$(AOBAKE) bake $$< -o $$(OUT)/$$*.ply -o $$(OUT)/$$*.usda $$(BAKE_FLAGS)
+	@echo "baked $$< -> $$(OUT)/$$*.ply, $$(OUT)/$$*.usda"
 endef
 $(foreach e,$(MESH_EXT),$(eval $(call BAKE_RULE,$(e))))
 
 $(OUT):
-	mkdir -p $@
+	@mkdir -p $@
 
 # PLY has no up axis; the bundled procedural scenes are +Z up (data/README.md).
 out/sphere_on_ground.ply out/sphere_on_ground.usda out/box_stack.ply out/box_stack.usda: BAKE_FLAGS += --up Z

@@ -14,11 +14,12 @@ import numpy as np
 
 from ..errors import FormatError, InputError
 from ..mesh import Surface, assemble_surface
-from . import gltf, obj, ply, trimesh_formats, usd
+from . import gltf, obj, ply, trimesh_formats, usd, usd_overlay
 from .common import (
     BAKE_SUFFIXES,
     atomic_write,
     check_ao,
+    check_input_file,
     check_output_dir,
     output_kind,
     short_reason,
@@ -32,6 +33,7 @@ __all__ = [
     "READ_SUFFIXES",
     "atomic_write",
     "check_ao",
+    "check_input_file",
     "check_outputs",
     "check_output_dir",
     "load_mesh",
@@ -39,6 +41,7 @@ __all__ = [
     "read_ao_ply",
     "read_ao_usd",
     "read_bake",
+    "usd_output_mode",
     "write_bake",
     "write_ply",
     "write_usd",
@@ -59,7 +62,7 @@ INPUT_FORMATS = {
 }
 
 
-def load_mesh(path: str | Path) -> Surface:
+def load_mesh(path: str | Path, *, time: float | None = None) -> Surface:
     """Read a mesh file into a :class:`Surface`, keeping its vertices exactly.
 
     Vertex count and order are the file's: duplicate, unreferenced and degenerate data
@@ -74,6 +77,11 @@ def load_mesh(path: str | Path) -> Surface:
     path : str or Path
         A ``.ply``, ``.obj``, ``.stl``, ``.off``, ``.glb``, ``.gltf``, ``.usd``,
         ``.usda``, ``.usdc`` or ``.usdz`` file.
+    time : float, optional
+        USD only: the time code to read points and transforms at (default: USD's
+        default time; a scene whose geometry has only time samples is read at its
+        earliest sample, see :func:`aobake.io.usd.read_parts`). ``metadata["time"]``
+        says which time was read.
 
     Returns
     -------
@@ -87,7 +95,7 @@ def load_mesh(path: str | Path) -> Surface:
     Raises
     ------
     InputError
-        Missing file, directory, unsupported suffix, unreadable or malformed data, empty
+        Missing file, directory, FIFO or device, unsupported suffix, unreadable or malformed data, empty
         mesh, no faces, NaN/inf coordinates, or indices out of range. The message is one
         line starting with the file name; foreign exceptions are chained.
 
@@ -101,19 +109,18 @@ def load_mesh(path: str | Path) -> Surface:
     """
     path = Path(path)
     fmt = INPUT_FORMATS.get(path.suffix.lower())
-    if not path.exists():
-        raise InputError(path, "file not found")
-    if path.is_dir():
-        raise InputError(path, "is a directory, not a mesh file")
+    check_input_file(path)
     if fmt is None:
         supported = ", ".join(sorted(INPUT_FORMATS))
         raise InputError(
             path, f"unsupported input suffix {path.suffix or '(none)'!r}; use one of {supported}"
         )
+    if time is not None and fmt != "USD":
+        raise InputError(path, f"a time was given but {fmt} files have no time samples (USD only)")
     metadata: dict = {"format": fmt}
     try:
         if fmt == "USD":
-            raw = usd.read_parts(path, metadata)
+            raw = usd.read_parts(path, metadata, time)
         else:
             data = path.read_bytes()
             if fmt == "OBJ":
@@ -154,6 +161,7 @@ def write_bake(
     meters_per_unit: float = 1.0,
     custom_data: Mapping[str, str | float | int | bool] | None = None,
     channel: str | None = None,
+    overlay: bool | None = None,
 ) -> None:
     """Write a baked surface to ``path``, choosing PLY, USD or glTF from its suffix.
 
@@ -166,12 +174,15 @@ def write_bake(
     ``custom_data`` becomes ``comment aobake <key>=<value>`` header lines, and
     ``up_axis`` and ``meters_per_unit`` are recorded the same way (PLY has no field for
     them; :func:`load_mesh` reads them back). USD gets one mesh per part with its
-    original polygons (see :func:`aobake.io.usd.write_usd`).
+    original polygons (see :func:`aobake.io.usd.write_usd`), except for a surface read
+    from USD: then an overlay layer over the source (the default) or, with
+    ``overlay=False``, the source flattened with ``ao`` added (see
+    :mod:`aobake.io.usd_overlay`). ``.usdz`` is always a flattened, self-contained package.
 
     Parameters
     ----------
     path : str or Path
-        ``.ply``, ``.usda``, ``.usdc``, ``.usd``, ``.gltf`` or ``.glb``; written atomically.
+        ``.ply``, ``.usda``, ``.usdc``, ``.usd``, ``.usdz``, ``.gltf`` or ``.glb``; written atomically.
     surface : aobake.mesh.Surface
         ``positions (n, 3) float64``, ``faces (m, 3) int64``, ``normals (n, 3) float64``
         and ``parts``.
@@ -189,11 +200,15 @@ def write_bake(
     channel : {"R", "G", "B", "A"}, optional
         Write ``ao`` (linear) into this channel of the input's own vertex colours,
         keeping the other channels; an input without colours is an InputError.
+    overlay : bool, optional
+        USD outputs of a USD input: True or None (default) writes an overlay, False a
+        full flattened copy. True for another input is an error (see
+        :func:`usd_output_mode`).
 
     Raises
     ------
     FormatError
-        Unsupported suffix (checked first).
+        Unsupported suffix, or ``overlay`` that does not apply (checked first).
     NumericalError
         ``ao`` is not ``(n,)`` for the surface's ``n`` vertices, non-finite, or
         outside [0, 1] (checked by the writer before anything is opened).
@@ -234,7 +249,13 @@ def write_bake(
     else:
         if channel is not None:
             raise FormatError(f"{Path(path).name}: --channel is not written to USD (use PLY or glTF output)")
-        write_usd(
+        writer = {
+            "usd": write_usd,
+            "overlay": usd_overlay.write_usd_overlay,
+            "copy": usd_overlay.write_usd_copy,
+            "usdz": usd_overlay.write_usdz,
+        }[usd_output_mode(path, usd_overlay.usd_source(surface) is not None, overlay)]
+        writer(
             path,
             surface,
             ao,
@@ -261,7 +282,7 @@ def check_outputs(surface: Surface, outputs, channel: str | None = None) -> None
         return
     for path in outputs:
         kind = output_kind(path)
-        if kind == "usd":
+        if kind in ("usd", "usdz"):
             raise FormatError(f"{Path(path).name}: --channel is not written to USD (use PLY or glTF output)")
         kept = surface.metadata.get("ply")
         if kind == "ply" and kept is not None:
@@ -273,6 +294,31 @@ def check_outputs(surface: Surface, outputs, channel: str | None = None) -> None
             pass
         else:
             raise InputError(surface.source, f"--channel {channel}: the mesh has no vertex colours to write into")
+
+
+def usd_output_mode(path: str | Path, usd_input: bool, overlay: bool | None = None) -> str:
+    """How a USD output is written: ``"overlay"``, ``"copy"``, ``"usdz"`` or ``"usd"``
+    (aobake's own stage, for non-USD inputs); ``"ply"`` or ``"gltf"`` for those.
+
+    ``overlay`` None means the default (an overlay when input and output are both USD).
+    Raises :class:`FormatError` when ``overlay=True`` cannot be honoured: the input is
+    not USD, or the output is a ``.usdz`` package (self-contained by definition).
+    """
+    kind = output_kind(path)
+    if kind in ("ply", "gltf"):
+        return kind
+    if overlay and kind == "usdz":
+        raise FormatError(
+            f"{Path(path).name}: a .usdz package is self-contained and cannot be an overlay; "
+            "write the overlay as .usda, .usdc or .usd"
+        )
+    if overlay and not usd_input:
+        raise FormatError(f"{Path(path).name}: an overlay needs a USD input to layer over")
+    if kind == "usdz":
+        return kind
+    if not usd_input:
+        return "usd"
+    return "copy" if overlay is False else "overlay"
 
 
 def read_bake(path: str | Path, *, n_vertices: int | None = None) -> np.ndarray:
@@ -296,7 +342,7 @@ def read_bake(path: str | Path, *, n_vertices: int | None = None) -> np.ndarray:
     Raises
     ------
     InputError
-        Missing or unreadable file, unsupported suffix, no ``ao`` data, an ``.npy``
+        Missing or unreadable file (or not a regular file), unsupported suffix, no ``ao`` data, an ``.npy``
         that is not a 1-D float array, or a count different from ``n_vertices``.
     """
     path = Path(path)
@@ -323,6 +369,7 @@ def read_bake(path: str | Path, *, n_vertices: int | None = None) -> np.ndarray:
 
 def _read_npy(path: Path) -> np.ndarray:
     """A 1-D float ``.npy`` array as float64 (no pickles)."""
+    check_input_file(path, ".npy file")
     try:
         array = np.load(path, allow_pickle=False)
     except FileNotFoundError:

@@ -17,7 +17,7 @@ import numpy as np
 from ..errors import InputError, OutputError
 from ..mesh import RawPart, fan_triangulate
 from .color import CHANNELS, quantize, srgb_bytes
-from .common import atomic_write, check_ao
+from .common import atomic_write, check_ao, output_name
 from .plyparse import PlyData, PlyList, read_bytes, read_ply, read_ply_header, read_ply_types
 
 #: Largest index a PLY ``int`` (int32) face index can hold.
@@ -129,7 +129,7 @@ def write_ply(
     if positions.ndim != 2 or positions.shape[1] != 3:
         raise ValueError(f"positions must have shape (n, 3), got {positions.shape}")
     n = positions.shape[0]
-    ao32 = check_ao(ao, n_vertices=n, where=path.name)
+    ao32 = check_ao(ao, n_vertices=n, where=output_name(path))
     faces = np.asarray(faces)
     if faces.size == 0:
         faces = faces.reshape(0, 3)
@@ -139,14 +139,14 @@ def write_ply(
         raise ValueError(f"faces must be integers, got dtype {faces.dtype}")
     if n > INT32_MAX:
         raise OutputError(
-            f"{path.name}: {n} vertices exceed what PLY int32 face indices can address"
+            f"{output_name(path)}: {n} vertices exceed what PLY int32 face indices can address"
         )
     if faces.size:
         bad = (faces < 0) | (faces >= n)
         if bad.any():
             worst = int(faces[faces >= n].max()) if (faces >= n).any() else int(faces[bad].min())
             raise InputError(
-                path,
+                output_name(path),
                 f"{int(bad.any(axis=1).sum())} faces reference vertex {worst} "
                 f"but the mesh has {n} vertices",
             )
@@ -171,7 +171,7 @@ def write_ply(
         pos32 = positions.astype(np.float32)
     if not np.isfinite(pos32).all():
         raise OutputError(
-            f"{path.name}: coordinates are non-finite or overflow float32; cannot write PLY"
+            f"{output_name(path)}: coordinates are non-finite or overflow float32; cannot write PLY"
         )
     vertex["x"], vertex["y"], vertex["z"] = pos32.T
     if normals is not None:
@@ -209,7 +209,7 @@ def _write(path: Path, header: list[str], chunks) -> None:
             for chunk in chunks:
                 fh.write(chunk)
     except OSError as exc:
-        raise OutputError(f"{path.name}: cannot write ({exc.strerror or exc})") from exc
+        raise OutputError(f"{output_name(path)}: cannot write ({exc.strerror or exc})") from exc
 
 
 def read_ao_ply(path: str | Path) -> np.ndarray:

@@ -23,6 +23,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ..errors import InputError
+from .common import check_input_file
 
 #: PLY scalar type names (both spellings of the spec) and their numpy codes.
 PLY_TYPES = {
@@ -205,13 +206,9 @@ def read_ply_types(
 
 def read_bytes(path: str | Path) -> bytes:
     """A file's contents, or an :class:`InputError` saying why they cannot be read."""
-    path = Path(path)
+    path = check_input_file(path, "PLY file")
     try:
         return path.read_bytes()
-    except FileNotFoundError:
-        raise InputError(path, "file not found") from None
-    except IsADirectoryError:
-        raise InputError(path, "is a directory, not a PLY file") from None
     except OSError as exc:
         raise InputError(path, f"cannot read ({exc.strerror or exc})") from exc
 

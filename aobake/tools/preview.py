@@ -16,9 +16,8 @@ import numpy as np
 
 from ..io import atomic_write
 from ..kernels import render as _k
+from .views import VIEWS  # (azimuth, elevation) of each named view, degrees from +X
 
-#: Named views: (azimuth, elevation) in degrees, azimuth about the up axis from +X.
-VIEWS = {"front": (-90.0, 10.0), "side": (0.0, 10.0), "top": (-90.0, 89.0), "iso": (-55.0, 30.0)}
 BACKGROUND = 0.82  # light grey, so fully open (white) surfaces stand out
 FOV_DEGREES = 30.0
 
