@@ -470,7 +470,7 @@ def test_overlay_refusals_are_one_line_errors(runner, tmp_path):
     )
     _one_line_error(
         runner, [str(source), "-o", str(source)], tmp_path,
-        "scene.usda: is the USD source itself; write the overlay to a new file",
+        "scene.usda: is also an input; refusing to write over it",
     )
     _one_line_error(
         runner, [str(ply), "-o", str(tmp_path / "p.ply"), "--time", "3"], tmp_path,
