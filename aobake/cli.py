@@ -112,6 +112,14 @@ class FieldSpec(click.ParamType):
         return Path(str(value)), None
 
 
+def compile_notice(quiet: bool):
+    """A :class:`aobake.progress.CompileWatch` that says "compiling kernels (first run
+    only) ..." on stderr when numba starts compiling, unless ``quiet``."""
+    from .progress import CompileWatch
+
+    return CompileWatch(None if quiet else sys.stderr)
+
+
 def common_options(f):
     """--seed, --threads, --quiet: shared by every command that computes (seed and threads
     as :mod:`aobake.options` defines them)."""
@@ -183,6 +191,18 @@ def _shown(spec, default) -> str:
     return f"{default:g}" if spec.kind is float else str(default)
 
 
+def _clamp_threads(ctx, param, value):
+    """``--threads`` above the core count: the core count, with a note on stderr (more
+    threads than cores only costs memory, and the numba methods cannot start them)."""
+    import os
+
+    cores = os.cpu_count() or 1
+    if value is not None and value > cores:
+        click.echo(f"Note: --threads {value}: this machine has {cores} cores; using {cores}.", err=True)
+        return cores
+    return value
+
+
 def _option(name: str, spec, default, *, set_default: bool = True, text: str | None = None, show: bool = True):
     """The click option of an option field: flag, type, range, help and shown default from
     its :class:`aobake.options.Spec`. ``set_default=False`` leaves the click default None,
@@ -203,6 +223,7 @@ def _option(name: str, spec, default, *, set_default: bool = True, text: str | N
         default=default if set_default else None,
         show_default=shown,
         help=text,
+        callback=_clamp_threads if name == "threads" else None,
     )
 
 
@@ -257,6 +278,76 @@ def _method_options(method: str, given: dict) -> dict:
     return out
 
 
+def bake_options(f):
+    """--method, its options (--seed and --threads among them), --color, --up,
+    --meters-per-unit, --field and --quiet: what `bake` takes and `batch` applies to every
+    input."""
+    for decorate in reversed(_BAKE_OPTIONS):
+        f = decorate(f)
+    return f
+
+
+_BAKE_OPTIONS = [
+    click.option(
+        "--method",
+        type=click.Choice(METHODS),
+        default=METHODS[0],
+        show_default=True,
+        help="embree: ray casting (the reference); bunnell: disk and polygon form factors, no rays.",
+    ),
+    method_options,
+    click.option(
+        "--color", is_flag=True, help="Also write ao as grey vertex colours (sRGB bytes in PLY, linear in USD and glTF)."
+    ),
+    click.option(
+        "--channel",
+        type=click.Choice(["R", "G", "B", "A"]),
+        default=None,
+        help="Write ao (linear) into this channel of the input's vertex colours, keeping the others (PLY, glTF).",
+    ),
+    click.option(
+        "--weld", is_flag=True, help="Bake with coincident vertices merged (STL soups, split seams); written per input vertex."
+    ),
+    click.option(
+        "--up",
+        type=click.Choice(["Y", "Z"]),
+        default=None,
+        help="Up axis: USD stage, PLY comment, glTF root turned to Y-up [default: the input's, else Y].",
+    ),
+    click.option(
+        "--meters-per-unit",
+        type=NumberRange(min=0, min_open=True),
+        default=None,
+        help="USD metersPerUnit, PLY comment, glTF root scale [default: the input's, else 1].",
+    ),
+    click.option(
+        "--overlay/--no-overlay",
+        default=None,
+        help="USD input to .usda/.usdc/.usd: write a layer over the source holding only ao "
+        "(sublayers it by relative path), or a full flattened copy with ao "
+        "[default: overlay]. .usdz is always a flattened package.",
+    ),
+    click.option(
+        "--time",
+        "time_code",
+        type=NumberRange(),
+        default=None,
+        help="USD input: read animated points and transforms at this time code "
+        "[default: the default time; geometry with only time samples: its earliest sample].",
+    ),
+    click.option(
+        "--field",
+        "fields",
+        multiple=True,
+        type=FieldSpec(),
+        help="An AO field (from `aobake field`) of a rigid occluder, optionally placed: "
+        "FIELD.npz@tx,ty,tz[,rx,ry,rz] (mesh units; degrees about x, then y, then z). "
+        "Repeatable; each multiplies ao by its 1 - A_k.",
+    ),
+    click.option("--quiet", "-q", is_flag=True, help="No progress bar or summary on stderr."),
+]
+
+
 @main.command()
 @click.argument("mesh", type=click.Path(path_type=Path))
 @click.option(
@@ -265,59 +356,156 @@ def _method_options(method: str, given: dict) -> dict:
     required=True,
     multiple=True,
     type=click.Path(path_type=Path),
-    help="Output .ply, .usda, .usdc or .usd (repeat for several formats from one bake).",
+    help="Output .ply, .usda, .usdc, .usd, .usdz, .gltf or .glb (repeat for several formats from one bake).",
 )
-@click.option(
-    "--method",
-    type=click.Choice(METHODS),
-    default=METHODS[0],
-    show_default=True,
-    help="embree: ray casting (the reference); bunnell: disk and polygon form factors, no rays.",
-)
-@method_options
-@click.option("--color", is_flag=True, help="Also write ao as grey vertex colours.")
-@click.option(
-    "--up", type=click.Choice(["Y", "Z"]), default=None, help="USD stage up axis [default: the input's, else Y]."
-)
-@click.option(
-    "--meters-per-unit",
-    type=click.FloatRange(min=0, min_open=True),
-    default=None,
-    help="USD metersPerUnit [default: the input's, else 1].",
-)
-@click.option(
-    "--field",
-    "fields",
-    multiple=True,
-    type=FieldSpec(),
-    help="An AO field (from `aobake field`) of a rigid occluder, optionally placed: "
-    "FIELD.npz@tx,ty,tz[,rx,ry,rz] (mesh units; degrees about x, then y, then z). "
-    "Repeatable; each multiplies ao by its 1 - A_k.",
-)
-@click.option("--quiet", "-q", is_flag=True, help="No progress bar or summary on stderr.")
-def bake(mesh, output, method, color, up, meters_per_unit, fields, quiet, **given):
+@bake_options
+def bake(mesh, output, method, color, channel, weld, up, meters_per_unit, overlay, time_code, fields, quiet, **given):
     """Bake AO of MESH into OUTPUT as the per-vertex attribute `ao`.
 
     `ao` = 1 - A: 1 = fully open, 0 = fully occluded. MESH: PLY, OBJ, STL, OFF,
     GLB/glTF or USD; vertex count and order are kept. With --field, the mesh's own AO
-    is multiplied by each occluder's: 1 - A = (1 - A_self) prod (1 - A_k).
+    is multiplied by each occluder's: 1 - A = (1 - A_self) prod (1 - A_k). A USD
+    input baked to USD gives an overlay: the source with primvars:ao added, by layering.
     """
     from .pipeline import bake_file
     from .progress import make_progress
 
-    report = bake_file(
-        mesh,
-        output,
-        method=method,
-        color=color,
-        up_axis=up,
-        meters_per_unit=meters_per_unit,
-        progress=make_progress(quiet),
-        fields=fields,
-        **_method_options(method, given),
-    )
+    if color and channel:
+        raise click.UsageError("--color and --channel both write the vertex colours; give one")
+    with compile_notice(quiet):
+        report = bake_file(
+            mesh,
+            output,
+            method=method,
+            color=color,
+            channel=channel,
+            weld=weld,
+            up_axis=up,
+            meters_per_unit=meters_per_unit,
+            progress=make_progress(quiet),
+            fields=fields,
+            time=time_code,
+            overlay=overlay,
+            **_method_options(method, given),
+        )
     if not quiet:
         click.echo(report.summary(), err=True)
+
+
+@main.command()
+@click.argument("paths", nargs=-1, required=True)
+@click.option(
+    "-o", "--output", "outdir", required=True, type=click.Path(path_type=Path), help="Output directory (created)."
+)
+@click.option(
+    "--to",
+    "formats",
+    default="ply,usda",
+    show_default=True,
+    help="Formats written per input, comma-separated (ply, usda, usdc, usd): OUTDIR/<relative path>/<stem>.<ext>.",
+)
+@click.option(
+    "--workers", type=click.IntRange(min=1), default=None, help="Local worker processes [default: one per core]."
+)
+@click.option("--scheduler", default=None, help="Use a running Dask cluster: tcp://HOST:PORT of its scheduler.")
+@click.option(
+    "--split",
+    type=click.IntRange(min=1),
+    default=1,
+    show_default=True,
+    help="Bake each mesh as K vertex ranges on K tasks (embree only; bit-identical to an unsplit bake).",
+)
+@click.option(
+    "--retries",
+    type=click.IntRange(min=0),
+    default=2,
+    show_default=True,
+    help="Rerun an input whose worker died or failed unexpectedly this often (a bad mesh is not retried).",
+)
+@click.option("--force", is_flag=True, help="Bake every input, also those the manifest records as up to date.")
+@click.option(
+    "--emit-commands",
+    is_flag=True,
+    help="Print one `aobake bake` command per input that is not up to date instead of baking (for render farms, xargs -P).",
+)
+@bake_options
+def batch(
+    paths, outdir, formats, workers, scheduler, split, retries, force, emit_commands,
+    method, color, channel, weld, up, meters_per_unit, overlay, time_code, fields, quiet, **given,
+):  # fmt: skip
+    """Bake every mesh PATHS name into OUTDIR on a Dask cluster, skipping what is up to date.
+
+    PATHS: mesh files, directories (searched recursively), .txt/.lst files listing
+    paths, or glob patterns. Every `bake` option applies to every input. Runs on a local
+    cluster of worker processes by default, or on --scheduler. An input is skipped when
+    its content, the options and the aobake version match OUTDIR/manifest.json; each
+    input's status, error, vertices, rays, seconds, worker and output hashes are recorded
+    there (and in manifest.csv). Exit code 1 when any input failed.
+    """
+    from .batch import Settings, run_batch
+    from .batch import emit_commands as emit
+    from .progress import NullBatchBar, make_batch_bar
+
+    exts = tuple(e.strip().lower().lstrip(".") for e in formats.split(",") if e.strip())
+    if not exts:
+        raise click.BadParameter("give at least one format", param_hint="--to")
+    if len(set(exts)) != len(exts):
+        raise click.BadParameter(f"{formats!r} names a format twice", param_hint="--to")
+    from .methods import SPLITTABLE
+
+    if split > 1 and method not in SPLITTABLE:
+        raise click.UsageError(
+            f"--split applies to --method {'/'.join(SPLITTABLE)} only: {method} couples all vertices"
+        )
+    if color and channel:
+        raise click.UsageError("--color and --channel both write the vertex colours; give one")
+    if split > 1 and weld:
+        raise click.UsageError("--split bakes vertex ranges; a welded mesh is baked whole (drop --weld or --split)")
+    if emit_commands and (scheduler or workers or split > 1):
+        raise click.UsageError("--emit-commands bakes nothing: --scheduler, --workers and --split do not apply")
+    settings = Settings(
+        method=method,
+        options=_method_options(method, given),
+        color=color,
+        channel=channel,
+        weld=weld,
+        up_axis=up,
+        meters_per_unit=meters_per_unit,
+        fields=tuple(fields),
+        time=time_code,
+        overlay=overlay,
+    )
+    if emit_commands:
+        for line in emit(paths, outdir, formats=exts, settings=settings, force=force):
+            click.echo(line)
+        return
+
+    bar = make_batch_bar(quiet)
+
+    def on_failure(record):  # below the bar, which redraws on the next line
+        click.echo(("" if isinstance(bar, NullBatchBar) else "\n") + f"failed: {record['error']}", err=True)
+
+    try:
+        result = run_batch(
+            paths,
+            outdir,
+            formats=exts,
+            settings=settings,
+            workers=workers,
+            scheduler=scheduler,
+            split=split,
+            retries=retries,
+            force=force,
+            bar=bar,
+            on_failure=on_failure,
+        )
+    except KeyboardInterrupt:
+        click.echo(f"batch interrupted: {outdir / 'manifest.json'} records what finished; run it again to resume", err=True)
+        sys.exit(130)
+    if not quiet or result.failed:
+        click.echo(result.summary(), err=True)
+    if result.failed:
+        sys.exit(1)
 
 
 def _field_options(f):
@@ -340,7 +528,8 @@ def field_command(occluder, output, quiet, **options):
     from .pipeline import fit_field_file
     from .progress import make_progress
 
-    report = fit_field_file(occluder, output, progress=make_progress(quiet), **options)
+    with compile_notice(quiet):
+        report = fit_field_file(occluder, output, progress=make_progress(quiet), **options)
     if not quiet:
         click.echo(report.summary(), err=True)
 
@@ -361,7 +550,7 @@ def field_command(occluder, output, quiet, **options):
 )
 @click.option("--up", type=click.Choice(["Y", "Z"]), default=None, help="Up axis for --render [default: the file's, else Y].")
 def compare(reference, candidate, threshold, worst, json_path, plot_path, render_path, up):
-    """Error report of CANDIDATE against REFERENCE (bakes of one mesh: PLY, USD or .npy).
+    """Error report of CANDIDATE against REFERENCE (bakes of one mesh: PLY, USD, glTF or .npy).
 
     Prints RMSE, MAE, mean error, max and p50/p95/p99 of |error| (error = candidate -
     reference, on `ao` = 1 - A), the share of vertices above --threshold and the worst
@@ -420,19 +609,20 @@ def sweep(mesh, out_dir, reference_rays, repeats, no_plot, no_fields, up, seed, 
         if not quiet:
             click.echo(f"  {row.method:8s} {row.label:24s} {row.seconds:8.3f} s  RMSE {row.rmse:.4f}", err=True)
 
-    rows = sweep_file(
-        mesh,
-        out_dir,
-        reference_rays=reference_rays,
-        seed=seed,
-        threads=threads,
-        repeats=repeats,
-        fields=not no_fields,
-        up=up,
-        plot=plot,
-        progress=make_progress(quiet),
-        on_row=on_row,
-    )
+    with compile_notice(quiet):
+        rows = sweep_file(
+            mesh,
+            out_dir,
+            reference_rays=reference_rays,
+            seed=seed,
+            threads=threads,
+            repeats=repeats,
+            fields=not no_fields,
+            up=up,
+            plot=plot,
+            progress=make_progress(quiet),
+            on_row=on_row,
+        )
     click.echo(to_markdown(rows))
 
 
@@ -442,14 +632,14 @@ def sweep(mesh, out_dir, reference_rays, repeats, no_plot, no_fields, up, seed, 
 @click.option("--view", type=click.Choice(list(VIEWS)), default="iso", show_default=True, help="Camera direction.")
 @click.option(
     "--azimuth",
-    type=float,
+    type=NumberRange(),
     default=None,
     help="Degrees about the up axis, overriding --view's "
     f"[default: the view's: {', '.join(f'{v} {a:g}' for v, (a, _) in VIEWS.items())}].",
 )
 @click.option(
     "--elevation",
-    type=click.FloatRange(-90, 90),
+    type=NumberRange(-90, 90),
     default=None,
     help="Degrees above the horizon, overriding --view's "
     f"[default: the view's: {', '.join(f'{v} {e:g}' for v, (_, e) in VIEWS.items())}].",
@@ -457,10 +647,30 @@ def sweep(mesh, out_dir, reference_rays, repeats, no_plot, no_fields, up, seed, 
 @click.option("--size", type=click.IntRange(16, 8192), default=640, show_default=True, help="Image side in pixels.")
 @click.option("--up", type=click.Choice(["Y", "Z"]), default=None, help="Up axis [default: the file's, else Y].")
 def preview(bake, output, view, azimuth, elevation, size, up):
-    """Render BAKE (a PLY or USD file with `ao`) to a PNG: AO as grey, white = open."""
+    """Render BAKE (a PLY, USD or glTF file with `ao`) to a PNG: AO as grey, white = open."""
     from .pipeline import preview_file
 
-    preview_file(bake, output, size=size, up=up, view=view, azimuth=azimuth, elevation=elevation)
+    with compile_notice(False):
+        preview_file(bake, output, size=size, up=up, view=view, azimuth=azimuth, elevation=elevation)
+
+
+@main.command("warm-up")
+@click.option("--quiet", "-q", is_flag=True, help="No progress bar or summary on stderr.")
+def warm_up_command(quiet):
+    """Compile the kernels every command needs, once, so that later runs start at once.
+
+    numba compiles aobake's kernels on their first use and caches them on disk (a
+    minute or two on a new install, then never again). This bakes a tiny built-in scene
+    with every method, fits and applies a small field and renders a preview, nothing
+    written outside a temporary directory. `make bake` runs it first.
+    """
+    from .pipeline import warm_up
+    from .progress import make_progress
+
+    with compile_notice(quiet):
+        report = warm_up(progress=make_progress(quiet))
+    if not quiet:
+        click.echo(report.summary(), err=True)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -10,6 +10,7 @@ import contextlib
 import os
 import re
 import signal
+import stat
 import sys
 import tempfile
 import threading
@@ -22,7 +23,15 @@ import numpy as np
 from ..errors import FormatError, InputError, NumericalError, OutputError
 
 #: Output suffixes and the writer family that handles them.
-BAKE_SUFFIXES = {".ply": "ply", ".usda": "usd", ".usdc": "usd", ".usd": "usd"}
+BAKE_SUFFIXES = {
+    ".ply": "ply",
+    ".usda": "usd",
+    ".usdc": "usd",
+    ".usd": "usd",
+    ".usdz": "usdz",
+    ".glb": "gltf",
+    ".gltf": "gltf",
+}
 
 
 def output_name(path: str | Path) -> str:
@@ -34,7 +43,7 @@ def output_name(path: str | Path) -> str:
 
 
 def output_kind(path: str | Path) -> str:
-    """Return ``"ply"`` or ``"usd"`` for an output path, or raise :class:`FormatError`.
+    """Return ``"ply"``, ``"usd"``, ``"usdz"`` or ``"gltf"`` for an output path, or raise :class:`FormatError`.
 
     Called before any computation so a typo in ``-o`` fails fast.
     """
@@ -72,6 +81,36 @@ def check_not_input(output: str | Path, inputs) -> None:
         with contextlib.suppress(OSError):
             if out.exists() and os.path.samefile(out, item):
                 raise OutputError(f"{output_name(out)}: is also an input; refusing to write over it")
+
+
+#: What a path that exists but is no regular file is, for the message.
+_NOT_REGULAR = (
+    (stat.S_ISFIFO, "a FIFO"),
+    (stat.S_ISCHR, "a character device"),
+    (stat.S_ISBLK, "a block device"),
+    (stat.S_ISSOCK, "a socket"),
+)
+
+
+def check_input_file(path: str | Path, what: str = "mesh file") -> Path:
+    """Return ``path`` if it names a regular file (symlinks followed), else raise the
+    one-line :class:`InputError`: missing, a directory, or a FIFO, device or socket.
+
+    Checked before any read: a FIFO blocks the reader and ``/dev/zero`` never ends.
+    """
+    path = Path(path)
+    try:
+        mode = os.stat(path).st_mode
+    except FileNotFoundError:
+        raise InputError(path, "file not found") from None
+    except OSError as exc:
+        raise InputError(path, f"cannot read file: {exc.strerror or exc}") from None
+    if stat.S_ISDIR(mode):
+        raise InputError(path, f"is a directory, not a {what}")
+    if not stat.S_ISREG(mode):
+        kind = next((name for test, name in _NOT_REGULAR if test(mode)), "not a regular file")
+        raise InputError(path, f"is {kind}, not a {what}; give a regular file")
+    return path
 
 
 def check_ao(

@@ -27,7 +27,7 @@ import numpy as np
 from .._types import FloatArray
 from ..errors import InputError, OutputError
 from ..mesh import RawPart, fan_triangulate, reverse_polygons, transformed_part
-from .common import atomic_write, check_ao, foreign_stderr, output_name
+from .common import atomic_write, check_ao, check_input_file, foreign_stderr, output_name
 
 #: Largest index a USD ``int[]`` (int32) can hold.
 INT32_MAX = int(np.iinfo(np.int32).max)
@@ -83,7 +83,8 @@ def write_usd(
         Stage ``metersPerUnit`` (> 0); 1.0 means the mesh units are meters.
     custom_data : mapping of str to str, float, int or bool, optional
         Recorded as ``customData["aobake"]`` on ``/Root`` and on every mesh (method,
-        parameters, seed, aobake version...).
+        parameters, seed, aobake version...), and as the layer's
+        ``customLayerData["aobake"]``.
 
     Raises
     ------
@@ -131,7 +132,8 @@ def read_ao_usd(path: str | Path) -> np.ndarray:
     """Read the ``primvars:ao`` of every mesh in a USD file, concatenated.
 
     Meshes are visited in stage traversal order (depth first, file order), which is
-    the writer's part order, so the result lines up with the baked vertices.
+    the writer's part order, so the result lines up with the baked vertices; invisible
+    meshes and guide or proxy purposes are skipped, as the mesh reader skips them.
 
     Parameters
     ----------
@@ -150,26 +152,20 @@ def read_ao_usd(path: str | Path) -> np.ndarray:
         a mesh lacks one while others have it, or the primvar is not one value per
         point.
     """
-    path = Path(path)
-    if not path.exists():
-        raise InputError(path, "file not found")
-    if path.is_dir():
-        raise InputError(path, "is a directory, not a USD file")
+    path = check_input_file(path, "USD file")
     from pxr import Sdf, Usd, UsdGeom
 
     stage = _open_fresh(path, Sdf, Usd)
     parts: list[np.ndarray] = []
     missing: list[str] = []
-    for prim in Usd.PrimRange.Stage(stage, Usd.TraverseInstanceProxies()):
-        if not prim.IsA(UsdGeom.Mesh):
-            continue
+    for prim in baked_meshes(stage, Usd.TimeCode.Default()):
         mesh = UsdGeom.Mesh(prim)
         primvar = UsdGeom.PrimvarsAPI(prim).GetPrimvar(AO_PRIMVAR)
         if not primvar or not primvar.HasValue():
             missing.append(str(prim.GetPath()))
             continue
         values = primvar.ComputeFlattened()
-        points = mesh.GetPointsAttr().Get()
+        points = _usd_value(mesh.GetPointsAttr(), Usd.TimeCode.Default(), None)
         n_points = 0 if points is None else len(points)
         if values is None:
             missing.append(str(prim.GetPath()))
@@ -200,6 +196,13 @@ def _open_fresh(path: Path, Sdf, Usd):
         with foreign_stderr(path.name):
             if Sdf.Layer.Find(str(path.resolve())) is not None:
                 layer = Sdf.Layer.OpenAsAnonymous(str(path.resolve()))
+                if layer is not None:
+                    # an anonymous layer anchors nothing: sublayers relative to the file (an
+                    # aobake overlay's source) are made absolute so they still compose
+                    paths = [_anchored(sub, path) for sub in layer.subLayerPaths]
+                    del layer.subLayerPaths[:]
+                    for sub in paths:
+                        layer.subLayerPaths.append(sub)
                 stage = None if layer is None else Usd.Stage.Open(layer)
             else:
                 stage = Usd.Stage.Open(str(path.resolve()))
@@ -213,8 +216,16 @@ def _open_fresh(path: Path, Sdf, Usd):
     return stage
 
 
+def _anchored(asset: str, layer_path: Path) -> str:
+    """A layer's relative asset path made absolute against the layer's directory."""
+    if asset.startswith(("./", "../")) or not (Path(asset).is_absolute() or ":" in asset):
+        return str((layer_path.resolve().parent / asset).resolve())
+    return asset
+
+
 def _clean_custom_data(custom_data) -> dict:
-    """Check ``custom_data`` maps str to str, float, int or bool; return plain Python values."""
+    """Check ``custom_data`` maps str to str, float, int, bool or a list of str; return
+    values USD stores (plain Python, lists as ``Vt.StringArray``)."""
     if custom_data is None:
         return {}
     out = {}
@@ -231,9 +242,14 @@ def _clean_custom_data(custom_data) -> dict:
             out[key] = value
         elif isinstance(value, float):
             out[key] = value
+        elif isinstance(value, list | tuple) and all(isinstance(v, str) for v in value):
+            from pxr import Vt
+
+            out[key] = Vt.StringArray(list(value))  # e.g. the --field files
         else:
             raise ValueError(
-                f"custom_data[{key!r}] must be str, float, int or bool, got {type(value).__name__}"
+                f"custom_data[{key!r}] must be str, float, int, bool or a list of str, "
+                f"got {type(value).__name__}"
             )
     return out
 
@@ -258,10 +274,11 @@ def _mesh_arrays(path: Path, surface, ao32: np.ndarray) -> list[dict]:
             )
         counts = np.asarray(part.face_vertex_counts, dtype=np.int64).reshape(-1)
         indices = np.asarray(part.face_vertex_indices, dtype=np.int64).reshape(-1)
-        if counts.size and counts.min() < 3:
+        # faces of fewer than 3 corners are written as the input had them (USD keeps
+        # them; renderers skip them); only negative counts are nonsense
+        if counts.size and counts.min() < 0:
             raise InputError(
-                surface.source,
-                f"part {part.name!r}: {int((counts < 3).sum())} faces have fewer than 3 corners",
+                surface.source, f"part {part.name!r}: {int((counts < 0).sum())} negative face counts"
             )
         if int(counts.sum()) != indices.size:
             raise InputError(
@@ -337,6 +354,8 @@ def _author_stage(
         stage.SetDefaultPrim(root)
         if custom_data:
             root.SetCustomDataByKey(CUSTOM_DATA_KEY, custom_data)
+            # also on the layer, where overlays and full copies record their source
+            stage.GetRootLayer().customLayerData = {CUSTOM_DATA_KEY: custom_data}
         for arrays in meshes:
             _author_mesh(
                 stage, f"{ROOT_PATH}/{arrays['name']}", arrays, color, custom_data, Sdf, UsdGeom, Vt
@@ -386,9 +405,17 @@ def _author_mesh(
 # -- reading meshes ---------------------------------------------------------------------
 
 
-def read_parts(path: Path, metadata: dict) -> list[RawPart]:
+def read_parts(path: Path, metadata: dict, time: float | None = None) -> list[RawPart]:
     """Every visible ``UsdGeom.Mesh`` in world space (instance proxies included; guide and
-    proxy purposes skipped)."""
+    proxy purposes skipped), read at ``time``.
+
+    ``time=None`` is USD's default time. Where a baked mesh's points, topology or
+    transforms are time-sampled without a default value (nothing to read at the default
+    time), the whole scene is read at the earliest such sample instead, so every mesh is
+    taken at one instant. ``metadata`` gets ``time`` (the time code read, None for the
+    default), ``animated`` (how many meshes have time-varying points or transforms) and
+    ``path`` (the resolved source file, for the writers that layer over it).
+    """
     try:
         from pxr import Usd, UsdGeom
     except ImportError as exc:
@@ -403,10 +430,35 @@ def read_parts(path: Path, metadata: dict) -> list[RawPart]:
     metadata.update(
         up_axis=str(UsdGeom.GetStageUpAxis(stage)),
         meters_per_unit=float(UsdGeom.GetStageMetersPerUnit(stage)),
+        path=str(Path(path).resolve()),
     )
-    time = Usd.TimeCode.Default()
+    if time is not None and not math.isfinite(time):
+        raise InputError(path, f"time {time} is not a finite time code")
+    default = Usd.TimeCode.Default()
+    meshes = list(baked_meshes(stage, default if time is None else Usd.TimeCode(time)))
+    animated = [m for m in meshes if _time_varying(m)]
+    if time is None:
+        first = _first_sample_without_default(animated)
+        code = default if first is None else Usd.TimeCode(first)
+        if first is not None:  # visibility may differ at that instant
+            meshes = list(baked_meshes(stage, code))
+        metadata["time"] = first
+    else:
+        code = Usd.TimeCode(time)
+        metadata["time"] = float(time)
+    metadata["animated"] = len(animated)
+    raw = [_usd_mesh_part(path, UsdGeom.Mesh(prim), code) for prim in meshes]
+    if not raw:
+        raise InputError(path, "no visible UsdGeom.Mesh in the stage")
+    return raw
+
+
+def baked_meshes(stage, time):
+    """The meshes aobake bakes, in traversal order: visible ``UsdGeom.Mesh`` prims
+    (instance proxies included) whose purpose is not guide or proxy."""
+    from pxr import Usd, UsdGeom
+
     skipped_purposes = {UsdGeom.Tokens.guide, UsdGeom.Tokens.proxy}
-    raw = []
     for prim in stage.Traverse(Usd.TraverseInstanceProxies()):
         if not prim.IsA(UsdGeom.Mesh):
             continue
@@ -415,10 +467,48 @@ def read_parts(path: Path, metadata: dict) -> list[RawPart]:
             continue
         if imageable.ComputePurpose() in skipped_purposes:
             continue
-        raw.append(_usd_mesh_part(path, UsdGeom.Mesh(prim), time))
-    if not raw:
-        raise InputError(path, "no visible UsdGeom.Mesh in the stage")
-    return raw
+        yield prim
+
+
+def _geometry_attributes(prim):
+    """The attributes that place a mesh's points: its points and topology, and the
+    xformOps of the prim and its ancestors up to a resetXformStack."""
+    from pxr import UsdGeom
+
+    mesh = UsdGeom.Mesh(prim)
+    attributes = [
+        mesh.GetPointsAttr(),
+        mesh.GetFaceVertexCountsAttr(),
+        mesh.GetFaceVertexIndicesAttr(),
+    ]
+    while prim and not prim.IsPseudoRoot():
+        xformable = UsdGeom.Xformable(prim)
+        if xformable:
+            attributes += [op.GetAttr() for op in xformable.GetOrderedXformOps()]
+            if xformable.GetResetXformStack():
+                break
+        prim = prim.GetParent()
+    return attributes
+
+
+def _time_varying(prim) -> bool:
+    return any(a and a.GetNumTimeSamples() > 0 for a in _geometry_attributes(prim))
+
+
+def _first_sample_without_default(prims) -> float | None:
+    """Earliest time sample among geometry attributes that have no default value."""
+    from pxr import Usd
+
+    first = None
+    for prim in prims:
+        for attribute in _geometry_attributes(prim):
+            if not attribute or not attribute.GetNumTimeSamples():
+                continue
+            if attribute.Get(Usd.TimeCode.Default()) is not None:
+                continue
+            t = attribute.GetTimeSamples()[0]
+            first = t if first is None else min(first, t)
+    return first
 
 
 def _usd_mesh_part(path: Path, mesh, time) -> RawPart:
