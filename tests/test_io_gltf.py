@@ -297,10 +297,10 @@ def test_a_document_changed_since_loading_is_refused_before_baking(tmp_path, mon
     src = ga.write_scene(tmp_path / "s.glb")
     real = pipeline.as_surface
 
-    def shifted(source):
+    def shifted(source, time=None):  # as_surface's signature
         import dataclasses
 
-        surface = real(source)
+        surface = real(source, time)
         return dataclasses.replace(surface, positions=surface.positions + 1.0)
 
     def no_bake(*args, **kwargs):
