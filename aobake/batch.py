@@ -486,7 +486,7 @@ def _start_client(scheduler: str | None, workers: int | None, retries: int):
             n_workers=workers,
             threads_per_worker=1,
             processes=True,
-            dashboard_address=None,
+            dashboard_address="127.0.0.1:0",
             silence_logs=logging.CRITICAL,
         )
     finally:
@@ -614,10 +614,10 @@ def _run(pending, outdir, settings, split, retries, client, scheduler, workers, 
             futures[final] = job
         def record(future) -> None:
             job = futures.pop(future)
-            if future.status == "finished":
+            try:
                 rec = future.result()
-            else:
-                rec = {"status": "failed", "error": _error_line(future.exception(), retries), "worker": ""}
+            except Exception as exc:  # retries used up, worker lost, cancelled
+                rec = {"status": "failed", "error": _error_line(exc, retries), "worker": ""}
             rec.update(
                 input=job.key,
                 source=job.source,
@@ -647,12 +647,13 @@ def _run(pending, outdir, settings, split, retries, client, scheduler, workers, 
                 record(future)
             raise
     finally:
-        if futures:  # interrupted: drop what has not run; running tasks end atomically
-            client.cancel(list(futures), force=True)
-        if own_client is not None:
-            own_client.close()
-        if cluster is not None:
-            cluster.close()
+        # interrupted: drop what has not run (running tasks end atomically); each step
+        # on its own, as the cluster may be gone already
+        steps = [lambda: client.cancel(list(futures), force=True)] if futures else []
+        steps += [c.close for c in (own_client, cluster) if c is not None]
+        for step in steps:
+            with contextlib.suppress(Exception):
+                step()
 
 
 def bake_arguments(settings: Settings) -> list[str]:

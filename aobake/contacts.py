@@ -155,7 +155,10 @@ def contact_points(
             continue
         used = np.unique(group_faces)
         local_faces = np.searchsorted(used, group_faces)
-        other = Tracer(p[used], local_faces, recentred=True)
+        # robust traversal: a probe through a vertex or an edge of the other surface (a
+        # float32 corner resting exactly on a floor vertex) must not slip between its
+        # triangles, or the contact is missed and the vertex reads open
+        other = Tracer(p[used], local_faces, recentred=True, robust=True)
         hit = other.intersect(other.frame(origins[idx]), (-n[idx]).astype(np.float32), reach[idx])
         rows = np.flatnonzero(hit["primID"] >= 0)
         if rows.size == 0:

@@ -599,7 +599,7 @@ def preview_file(
 ) -> None:
     """Render a bake (a mesh file carrying ``ao``: PLY, USD or glTF) to a PNG, AO as grey."""
     from .io import load_mesh, read_bake
-    from .tools.preview import grey, render_values, write_png
+    from .tools.preview import preview_png, write_png
 
     if Path(output).suffix.lower() != ".png":
         raise FormatError(f"{Path(output).name}: previews are written as PNG; use a .png suffix")
@@ -607,10 +607,10 @@ def preview_file(
     surface = load_mesh(bake)
     ao = read_bake(bake, n_vertices=surface.n_vertices)
     up = up or surface.metadata.get("up_axis") or DEFAULT_UP_AXIS
-    image = render_values(
+    png = preview_png(
         surface.positions, surface.faces, ao, size=size, up=up, view=view, azimuth=azimuth, elevation=elevation
     )
-    write_png(output, grey(image))
+    write_png(output, png)
 
 
 def render_comparison(reference, candidate, output, *, size: int = 480, up: str | None = None, view: str = "iso"):

@@ -28,7 +28,9 @@ def png(rgb) -> bytes:
     raw = b"".join(b"\0" + rgb[i].tobytes() for i in range(h))
 
     def chunk(kind, body):
-        return struct.pack(">I", len(body)) + kind + body + struct.pack(">I", zlib.crc32(kind + body))
+        return (
+            struct.pack(">I", len(body)) + kind + body + struct.pack(">I", zlib.crc32(kind + body))
+        )
 
     return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 8, 2, 0, 0, 0)) + \
         chunk(b"IDAT", zlib.compress(raw)) + chunk(b"IEND", b"")  # fmt: skip
@@ -65,7 +67,14 @@ class _Builder:
     def add(self, values, *, normalized=False, target=34962):
         values = np.ascontiguousarray(values)
         self.data += b"\0" * (-len(self.data) % 4)
-        self.views.append({"buffer": 0, "byteOffset": len(self.data), "byteLength": values.nbytes, "target": target})
+        self.views.append(
+            {
+                "buffer": 0,
+                "byteOffset": len(self.data),
+                "byteLength": values.nbytes,
+                "target": target,
+            }
+        )
         self.data += values.tobytes()
         width = 1 if values.ndim == 1 else values.shape[1]
         code = {v: k for k, v in COMPONENTS.items()}[values.dtype.str[1:]]
@@ -112,23 +121,42 @@ def scene_document(*, colored_everywhere: bool = False):
         "scenes": [{"name": "main", "nodes": [0, 1]}],
         "nodes": [
             {"name": "ground", "mesh": 0},
-            {"name": "props", "matrix": [1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0.5, 0, 1], "children": [3, 2],
-             "extras": {"note": "parent"}},
+            {
+                "name": "props",
+                "matrix": [1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0.5, 0, 1],
+                "children": [3, 2],
+                "extras": {"note": "parent"},
+            },
             {"name": "box_a", "mesh": 1, "translation": [-1.2, 0, 0]},
-            {"name": "box_b", "mesh": 1, "translation": [1.2, -0.1, 0.3], "rotation": [0, s, 0, s],
-             "scale": [0.8, 0.8, 0.8], "extensions": {"EXT_test_unknown": {"x": 1}}, "children": [4]},
+            {
+                "name": "box_b",
+                "mesh": 1,
+                "translation": [1.2, -0.1, 0.3],
+                "rotation": [0, s, 0, s],
+                "scale": [0.8, 0.8, 0.8],
+                "extensions": {"EXT_test_unknown": {"x": 1}},
+                "children": [4],
+            },
             {"name": "tet", "mesh": 2, "translation": [0, 0.5, 0]},
         ],
         "meshes": [
-            {"name": "ground", "primitives": [{"attributes": ground, "indices": ground_i, "material": 0},
-                                              {"attributes": points, "mode": 0}]},  # fmt: skip
+            {
+                "name": "ground",
+                "primitives": [
+                    {"attributes": ground, "indices": ground_i, "material": 0},
+                    {"attributes": points, "mode": 0},
+                ],
+            },  # fmt: skip
             {"name": "box", "primitives": [{"attributes": box, "indices": box_i, "material": 1}]},
             {"name": "tet", "primitives": [{"attributes": tet, "indices": tet_i}]},
         ],
         "materials": [
             {"name": "textured", "pbrMetallicRoughness": {"baseColorTexture": {"index": 0}}},
-            {"name": "glow", "emissiveFactor": [1, 0.5, 0], "extensions": {"KHR_materials_emissive_strength":
-                                                                          {"emissiveStrength": 2.0}}},  # fmt: skip
+            {
+                "name": "glow",
+                "emissiveFactor": [1, 0.5, 0],
+                "extensions": {"KHR_materials_emissive_strength": {"emissiveStrength": 2.0}},
+            },  # fmt: skip
         ],
         "textures": [{"sampler": 0, "source": 0}],
         "samplers": [{"magFilter": 9728}],
@@ -198,7 +226,10 @@ def accessor(gl, blobs, index):
     width = WIDTHS[a["type"]]
     stride = view.get("byteStride", dtype.itemsize * width)
     start = view.get("byteOffset", 0) + a.get("byteOffset", 0)
-    rows = [np.frombuffer(blobs[view["buffer"]], dtype, width, start + i * stride) for i in range(a["count"])]
+    rows = [
+        np.frombuffer(blobs[view["buffer"]], dtype, width, start + i * stride)
+        for i in range(a["count"])
+    ]
     return np.array(rows).reshape(a["count"], width)
 
 

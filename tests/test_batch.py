@@ -45,7 +45,7 @@ def _env() -> dict:
 def client():
     from distributed import Client, LocalCluster
 
-    cluster = LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None, silence_logs=50)
+    cluster = LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address="127.0.0.1:0", silence_logs=50)
     c = Client(cluster)
     yield c
     c.close()
@@ -346,3 +346,36 @@ def test_batch_bar_counts_and_eta():
     eta = float(text.split("eta")[1].strip().rstrip("s"))
     assert eta == pytest.approx(4.0 * 4 / 4, abs=0.1)  # 4 left at 4 baked per 4 s
     assert "[######----]" in text
+
+
+def test_retries_rerun_unexpected_failures_but_not_bad_meshes(library, tmp_path, monkeypatch):
+    from distributed import Client, LocalCluster
+
+    import aobake.pipeline
+
+    calls = []
+    real = aobake.pipeline.bake_file
+
+    def flaky(source, *args, **kwargs):  # the first try of every input runs out of memory
+        calls.append(Path(source).name)
+        if calls.count(Path(source).name) == 1:
+            raise MemoryError("cannot allocate 4 GB")
+        return real(source, *args, **kwargs)
+
+    monkeypatch.setattr(aobake.pipeline, "bake_file", flaky)
+    (library / "sub" / "box_stack.ply").unlink()
+    (library / "scene.obj").unlink()  # bunny.ply and broken.ply left
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address="127.0.0.1:0") as cluster:
+        with Client(cluster) as client:  # in this process: the tasks see the patch
+            s16 = batch.Settings(options={"n_rays": 16})
+            r = batch.run_batch([library], tmp_path / "a", settings=s16, client=client, retries=0)
+            assert {x["input"]: x["error"] for x in r.records} == {
+                "bunny.ply": "MemoryError: cannot allocate 4 GB",
+                "broken.ply": "MemoryError: cannot allocate 4 GB",
+            }
+            calls.clear()
+            r = batch.run_batch([library], tmp_path / "b", settings=s16, client=client, retries=1)
+    status = {x["input"]: x["status"] for x in r.records}
+    assert status == {"bunny.ply": "done", "broken.ply": "failed"}
+    assert sorted(calls) == ["broken.ply", "broken.ply", "bunny.ply", "bunny.ply"]  # retried once each
+    assert r.records[0]["error"].startswith("broken.ply: ")  # the mesh's own error, not retried again

@@ -284,7 +284,7 @@ def test_ray_chunks_bounded_and_complete(n_active, j0, j1, chunk):
     for v in active.tolist():  # each vertex's ranges tile [j0, j1) in order
         ranges = seen[v]
         assert ranges[0][0] == j0 and ranges[-1][1] == j1
-        assert all(r[1] == s[0] for r, s in zip(ranges, ranges[1:]))
+        assert all(r[1] == s[0] for r, s in zip(ranges[:-1], ranges[1:], strict=True))
 
 
 @pytest.mark.parametrize("threads", [1, 3])
@@ -296,3 +296,74 @@ def test_chunked_rays_are_bit_identical(threads):
         for chunk in (7, 64, 1000):
             alt = EmbreeOptions(**{**opts.__dict__, "threads": threads})
             np.testing.assert_array_equal(estimate(s, alt, chunk_rays=chunk).ao, ref)
+
+
+# -- contacts in float32 inputs ------------------------------------------------------------
+
+
+@pytest.mark.parametrize("shift", [(0.3, 0.7, 0.1), (0.0, 0.0, 0.0), (12.3, -4.1, 0.9)])
+def test_float32_corner_on_a_floor_vertex_reads_closed(shift):
+    # A unit box whose bottom corners sit exactly on vertices of a floor grid, with
+    # coordinates rounded to float32 as a GLB stores them. The contact probe passes
+    # through the floor exactly at a vertex, where Embree's non-robust traversal leaked
+    # (main read two corners 0.81 and 0.77 open at the first shift); the probe scene is
+    # now robust, and the corners read as in float64: the floor fills ~3/4 of the
+    # hemisphere about their diagonal normals.
+    import trimesh
+
+    box = trimesh.creation.box(extents=(1.0, 1.0, 1.0))
+    bv = box.vertices + [0, 0, 0.5]
+    gp, gf = scenes.ground_grid(2.0, 16)
+    positions = np.vstack([bv, gp]) + shift
+    faces = np.vstack([box.faces, gf + 8])
+    bottom = np.flatnonzero(bv[:, 2] < 1e-9)
+    ao = {}
+    for dtype in (np.float64, np.float32):
+        s = surface_from_arrays(positions.astype(dtype).astype(np.float64), faces)
+        ao[dtype] = embree_ao(s, n_rays=64).ao[bottom]
+    assert ao[np.float32].max() < 0.3
+    assert np.abs(ao[np.float32] - ao[np.float64]).max() <= 2 / 64
+
+
+# -- memory: previews in bands of rows ------------------------------------------------------
+
+
+@pytest.mark.parametrize("size,band", [(97, 256), (97, 1), (130, 7), (64, 64)])
+def test_preview_bands_give_the_same_file(size, band):
+    # Rendering a band of rows at a time (bounded memory at --size 8192) writes the very
+    # bytes of the whole-image render.
+    from aobake.tools.preview import grey, png_bytes, preview_png, render_values
+
+    s, _ = scenes.sphere_on_ground(0.5, 2, gap=0.0, cells=6)
+    values = np.linspace(0.0, 1.0, s.n_vertices)
+    whole = png_bytes(grey(render_values(s.positions, s.faces, values, size=size, up="Z", view="iso")))
+    banded = preview_png(s.positions, s.faces, values, size=size, band_rows=band, up="Z", view="iso")
+    assert banded == whole
+
+
+# -- the disk method on needles --------------------------------------------------------------
+
+NEEDLES = (
+    # a needle and an almost collinear sliver (edges 1e-9 of the scene): in the disk
+    # method's float32 terms the receiver's own disk, lifted 1e-4 disk radii above it,
+    # gave r^2 (pi r^2 + A) = 0 and 0 / 0 = NaN (found by fuzzing needles at 1e30)
+    [
+        [0.18727186130468504, -0.27374465076469623, 0.23181086176796964],
+        [0.46368160251798635, -0.31610307696995754, 0.19020606393998638],
+        [0.3201183961274917, -0.2941027254013409, 0.21181499187138172],
+        [0.5109625645468612, 0.4252309099879812, 0.10855601724430916],
+        [1.3002006222224844, -1.3568628461535328, 0.06167850530018773],
+        [2.089438679898108, -3.138956602295048, 0.01480099335606627],
+    ],
+    [[0, 1, 2], [3, 4, 5]],
+)
+
+
+@pytest.mark.parametrize("scale", [1.0, 1e30])
+@pytest.mark.parametrize("options", [{}, {"passes": 2}, {"near": 0.0}])
+def test_disk_method_finite_on_needles(scale, options):
+    positions, faces = NEEDLES
+    s = surface_from_arrays(np.array(positions) * scale, faces)
+    ao = np.asarray(aobake.bake(s, "bunnell", **options))
+    # the two slivers lie far apart and nearly edge-on to each other: every vertex is open
+    np.testing.assert_array_equal(ao, 1.0)

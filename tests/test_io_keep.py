@@ -7,6 +7,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from click.testing import CliRunner
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from plyfile import PlyData, PlyElement
 
 from aobake.cli import main
@@ -22,7 +24,9 @@ from aobake.tools.preview import render_values
 
 def test_srgb_spot_values_and_round_trip():
     # IEC 61966-2-1: the linear segment ends at 0.0031308 <-> 0.04045; 1 <-> 1
-    np.testing.assert_allclose(linear_to_srgb([0.0, 0.0031308, 1.0]), [0.0, 0.04045, 1.0], atol=2e-6)
+    np.testing.assert_allclose(
+        linear_to_srgb([0.0, 0.0031308, 1.0]), [0.0, 0.04045, 1.0], atol=2e-6
+    )
     # the issue's example: an sRGB-decoding viewer shows byte-encoded 0.512 as 0.2253
     np.testing.assert_allclose(srgb_to_linear(0.512), ((0.512 + 0.055) / 1.055) ** 2.4)
     x = np.linspace(0, 1, 1001)
@@ -48,7 +52,9 @@ def _rich_ply(path, *, text=True, alpha=True, colours=True):
     extra element (edges with lists of two lengths)."""
     fields = [("x", "f8"), ("y", "f8"), ("z", "f8"), ("s", "f4"), ("t", "f4")]
     if colours:
-        fields += [("red", "u1"), ("green", "u1"), ("blue", "u1")] + ([("alpha", "u1")] if alpha else [])
+        fields += [("red", "u1"), ("green", "u1"), ("blue", "u1")] + (
+            [("alpha", "u1")] if alpha else []
+        )
     fields += [("label", "i2")]
     v = np.zeros(4, dtype=fields)
     v["x"], v["y"], v["z"] = [0, 1.1, 0, 0], [0, 0, 1.3, 0], [0, 0, 0, 1.7]
@@ -64,7 +70,11 @@ def _rich_ply(path, *, text=True, alpha=True, colours=True):
     )
     e = np.empty(2, dtype=[("ends", object)])
     e["ends"] = [np.array([0, 1], "i4"), np.array([1, 2, 3], "i4")]
-    elements = [PlyElement.describe(v, "vertex"), PlyElement.describe(f, "face"), PlyElement.describe(e, "path")]
+    elements = [
+        PlyElement.describe(v, "vertex"),
+        PlyElement.describe(f, "face"),
+        PlyElement.describe(e, "path"),
+    ]
     PlyData(elements, text=text, comments=["made by a test", "aobake method=old"]).write(str(path))
     return v, f
 
@@ -87,7 +97,12 @@ def test_ply_keeps_every_element_and_property(tmp_path, text):
     np.testing.assert_array_equal(np.stack(out["face"].data["vertex_indices"]), f["vertex_indices"])
     np.testing.assert_array_equal(out["face"].data["flag"], f["flag"])
     assert [list(x) for x in out["path"].data["ends"]] == [[0, 1], [1, 2, 3]]
-    assert out.comments == ["made by a test", "aobake method=embree", "aobake up_axis=Z", "aobake meters_per_unit=1"]
+    assert out.comments == [
+        "made by a test",
+        "aobake method=embree",
+        "aobake up_axis=Z",
+        "aobake meters_per_unit=1",
+    ]
     # read back by aobake: the recorded up axis and the same ao
     again = load_mesh(tmp_path / "out.ply")
     assert again.metadata["up_axis"] == "Z" and again.metadata["meters_per_unit"] == 1.0
@@ -140,16 +155,30 @@ def test_ply_channel_a_adds_alpha_to_rgb(tmp_path):
 def test_cli_channel_without_colours_is_one_line_error(tmp_path):
     _rich_ply(tmp_path / "in.ply", colours=False)
     out = tmp_path / "out.ply"
-    result = CliRunner().invoke(main, ["bake", str(tmp_path / "in.ply"), "-o", str(out), "--rays", "4", "--channel", "A"])
+    result = CliRunner().invoke(
+        main, ["bake", str(tmp_path / "in.ply"), "-o", str(out), "--rays", "4", "--channel", "A"]
+    )
     assert result.exit_code == 1
-    assert result.output.strip() == "Error: in.ply: --channel A: the mesh has no vertex colours (red green blue)"
+    assert (
+        result.output.strip()
+        == "Error: in.ply: --channel A: the mesh has no vertex colours (red green blue)"
+    )
     assert not out.exists() and sorted(p.name for p in tmp_path.iterdir()) == ["in.ply"]
 
 
 def test_cli_color_and_channel_together_is_a_usage_error(tmp_path):
     _rich_ply(tmp_path / "in.ply")
     result = CliRunner().invoke(
-        main, ["bake", str(tmp_path / "in.ply"), "-o", str(tmp_path / "o.ply"), "--color", "--channel", "R"]
+        main,
+        [
+            "bake",
+            str(tmp_path / "in.ply"),
+            "-o",
+            str(tmp_path / "o.ply"),
+            "--color",
+            "--channel",
+            "R",
+        ],
     )
     assert result.exit_code == 2 and "--color and --channel" in result.output
 
@@ -216,7 +245,9 @@ def test_weld_equals_the_bake_of_the_welded_mesh(tmp_path):
     bare = np.zeros(len(v), dtype=[("x", "f4"), ("y", "f4"), ("z", "f4")])
     for k in "xyz":
         bare[k] = v[k]
-    PlyData([PlyElement.describe(bare, "vertex"), plain["face"]]).write(str(tmp_path / "welded_bare.ply"))
+    PlyData([PlyElement.describe(bare, "vertex"), plain["face"]]).write(
+        str(tmp_path / "welded_bare.ply")
+    )
     opts = dict(n_rays=32, seed=5, threads=1)
     bake_file(tmp_path / "soup.stl", tmp_path / "soup_ao.ply", weld=True, **opts)
     bake_file(tmp_path / "welded_bare.ply", tmp_path / "welded_ao.ply", **opts)
@@ -249,7 +280,77 @@ def test_channel_for_an_input_without_kept_colours_is_refused_before_baking(tmp_
 
     trimesh.Trimesh(*_soup(), process=False).export(tmp_path / "soup.stl")
     for out in ("o.ply", "o.glb"):
-        result = CliRunner().invoke(main, ["bake", str(tmp_path / "soup.stl"), "-o", str(tmp_path / out), "--channel", "B"])
+        result = CliRunner().invoke(
+            main, ["bake", str(tmp_path / "soup.stl"), "-o", str(tmp_path / out), "--channel", "B"]
+        )
         assert result.exit_code == 1
-        assert result.output == "Error: soup.stl: --channel B: the mesh has no vertex colours to write into\n"
+        assert (
+            result.output
+            == "Error: soup.stl: --channel B: the mesh has no vertex colours to write into\n"
+        )
     assert sorted(p.name for p in tmp_path.iterdir()) == ["soup.stl"]
+
+
+def test_ply_to_gltf_carries_uvs_and_colours(tmp_path):
+    import gltf_assets as ga
+
+    v, _ = _rich_ply(tmp_path / "in.ply")
+    surface = load_mesh(tmp_path / "in.ply")
+    write_bake(tmp_path / "o.glb", surface, AO)
+    write_bake(tmp_path / "g.glb", surface, AO, channel="G")
+    gl, blobs = ga.load(tmp_path / "o.glb")
+    attributes = gl["meshes"][0]["primitives"][0]["attributes"]
+    uv = ga.accessor(gl, blobs, attributes["TEXCOORD_0"])
+    np.testing.assert_array_equal(
+        uv, np.c_[v["s"], 1.0 - v["t"].astype(np.float64)].astype(np.float32)
+    )
+    colors = ga.accessor(gl, blobs, attributes["COLOR_0"])  # linear floats: what viewers showed
+    rgb = np.c_[v["red"], v["green"], v["blue"]] / 255.0
+    np.testing.assert_allclose(
+        colors[:, :3],
+        ((rgb + 0.055) / 1.055) ** 2.4 * (rgb > 0.04045) + rgb / 12.92 * (rgb <= 0.04045),
+        rtol=1e-6,
+    )
+    np.testing.assert_allclose(colors[:, 3], v["alpha"] / 255.0, rtol=1e-6)
+    np.testing.assert_array_equal(
+        ga.accessor(gl, blobs, attributes["_AO"])[:, 0], AO.astype(np.float32)
+    )
+    gl, blobs = ga.load(tmp_path / "g.glb")
+    index = gl["meshes"][0]["primitives"][0]["attributes"]["COLOR_0"]
+    packed = ga.accessor(gl, blobs, index)
+    assert packed.dtype == np.uint8 and gl["accessors"][index]["normalized"] is True
+    np.testing.assert_array_equal(packed, np.c_[v["red"], np.rint(AO * 255), v["blue"], v["alpha"]])
+
+
+@settings(max_examples=20, deadline=None)
+@given(st.data())
+def test_kept_elements_round_trip_any_types_and_list_lengths(tmp_path_factory, data):
+    """Random extra elements (scalars of every PLY type, lists of varying lengths) come back
+    from plyfile as written, beside a fixed tetrahedron."""
+    types = ["i1", "u1", "i2", "u2", "i4", "u4", "f4", "f8"]
+    rows = data.draw(st.integers(0, 6))
+    scalar = data.draw(st.sampled_from(types))
+    item = data.draw(st.sampled_from(types))
+    counter = data.draw(st.sampled_from(["u1", "u2", "i4"]))
+    rng = np.random.default_rng(data.draw(st.integers(0, 2**32 - 1)))
+    lengths = rng.integers(0, 5, rows)
+    extra = np.empty(rows, dtype=[("k", scalar), ("items", object)])
+    extra["k"] = (rng.integers(0, 100, rows)).astype(scalar)
+    for r in range(rows):
+        extra["items"][r] = rng.integers(0, 100, lengths[r]).astype(item)
+    d = tmp_path_factory.mktemp("ply")
+    v, f = _rich_ply(d / "base.ply", text=False)
+    base = PlyData.read(str(d / "base.ply"))
+    element = PlyElement.describe(
+        extra, "extra", len_types={"items": counter}, val_types={"items": item}
+    )
+    PlyData([base["vertex"], base["face"], element], text=data.draw(st.booleans())).write(
+        str(d / "in.ply")
+    )
+    write_bake(d / "out.ply", load_mesh(d / "in.ply"), AO)
+    out = PlyData.read(str(d / "out.ply"))
+    assert out["extra"].count == rows
+    np.testing.assert_array_equal(out["extra"].data["k"], extra["k"])
+    for r in range(rows):
+        np.testing.assert_array_equal(out["extra"].data["items"][r], extra["items"][r])
+    assert out["extra"].data["k"].dtype == np.dtype(scalar)  # the type kept, not widened

@@ -279,12 +279,16 @@ def _usd_channel_refusal(path, surface) -> str:
 
 def check_outputs(surface: Surface, outputs, channel: str | None = None) -> None:
     """Refuse, before baking, what the writers would refuse after it: a glTF input whose
-    meshes cannot be found in its document again (glTF output), and ``--channel`` where an
-    output cannot take it (USD output of a non-USD input, an input without vertex
-    colours: PLY ``red green blue``, glTF ``COLOR_0``, USD ``displayColor``)."""
+    meshes cannot be found in its document again (glTF output) or whose image files are
+    missing (GLB output embeds them), and ``--channel`` where an output cannot take it
+    (USD output of a non-USD input, an input without vertex colours: PLY ``red green
+    blue``, glTF ``COLOR_0``, USD ``displayColor``)."""
     kinds = {output_kind(path) for path in outputs}
     if "gltf" in kinds and surface.metadata.get("gltf_path"):
-        gltf.match_parts(gltf.read_document(surface.metadata["gltf_path"]), surface, warn=False)
+        doc = gltf.read_document(surface.metadata["gltf_path"])
+        gltf.match_parts(doc, surface, warn=False)
+        if any(Path(path).suffix.lower() == ".glb" for path in outputs):
+            gltf.check_images(doc)
     if channel is None:
         return
     for path in outputs:
@@ -300,6 +304,8 @@ def check_outputs(surface: Surface, outputs, channel: str | None = None) -> None
                 raise InputError(surface.source, f"--channel {channel}: the mesh has no vertex colours (red green blue)")
         elif kind == "gltf" and surface.metadata.get("gltf_path"):
             gltf.check_channel(gltf.read_document(surface.metadata["gltf_path"]), channel)
+        elif kind == "gltf" and gltf.ply_has_colors(surface):
+            pass
         else:
             raise InputError(surface.source, f"--channel {channel}: the mesh has no vertex colours to write into")
 

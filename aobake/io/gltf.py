@@ -26,7 +26,7 @@ from urllib.parse import quote, unquote
 import numpy as np
 
 from ..errors import InputError, OutputError
-from .color import CHANNELS, quantize
+from .color import CHANNELS, quantize, srgb_to_linear
 from .common import atomic_write, check_ao
 
 log = logging.getLogger(__name__)
@@ -74,7 +74,9 @@ def read_document(path: str | Path) -> Document:
     if data[:4] == _GLB_MAGIC:
         version, length = struct.unpack_from("<II", data, 4)
         if version != 2:
-            raise InputError(path, f"cannot read as glTF: GLB version {version}, only 2 is supported")
+            raise InputError(
+                path, f"cannot read as glTF: GLB version {version}, only 2 is supported"
+            )
         pos, doc = 12, None
         while pos + 8 <= min(length, len(data)):
             size, kind = struct.unpack_from("<II", data, pos)
@@ -115,8 +117,14 @@ def accessor_values(doc: Document, index: int) -> np.ndarray:
     if sparse:
         n = int(sparse["count"])
         idx = sparse["indices"]
-        where = _view(doc, idx["bufferView"], idx.get("byteOffset", 0),
-                      np.dtype("<" + COMPONENTS[idx["componentType"]]), n, 1)[:, 0]
+        where = _view(
+            doc,
+            idx["bufferView"],
+            idx.get("byteOffset", 0),
+            np.dtype("<" + COMPONENTS[idx["componentType"]]),
+            n,
+            1,
+        )[:, 0]
         values = sparse["values"]
         out[where] = _view(doc, values["bufferView"], values.get("byteOffset", 0), dtype, n, width)
     return out
@@ -128,7 +136,9 @@ def _view(doc: Document, view_index: int, offset: int, dtype: np.dtype, count: i
     start = view.get("byteOffset", 0) + offset
     stride = view.get("byteStride") or dtype.itemsize * width
     if count and start + stride * (count - 1) + dtype.itemsize * width > len(data):
-        raise InputError(doc.path, f"cannot read as glTF: buffer view {view_index} is shorter than its accessor")
+        raise InputError(
+            doc.path, f"cannot read as glTF: buffer view {view_index} is shorter than its accessor"
+        )
     return np.ndarray((count, width), dtype, data, start, (stride, dtype.itemsize)).copy()
 
 
@@ -178,10 +188,14 @@ def scene_slots(doc: Document) -> list[Slot]:
         world = parent @ _local_matrix(node)
         if "mesh" in node:
             for k, primitive in enumerate(gl["meshes"][node["mesh"]].get("primitives", [])):
-                if primitive.get("mode", 4) not in TRIANGLE_MODES or "POSITION" not in primitive.get("attributes", {}):
+                if primitive.get(
+                    "mode", 4
+                ) not in TRIANGLE_MODES or "POSITION" not in primitive.get("attributes", {}):
                     continue
                 a = primitive["attributes"]["POSITION"]
-                local = as_float(accessor_values(doc, a), gl["accessors"][a].get("normalized", False))
+                local = as_float(
+                    accessor_values(doc, a), gl["accessors"][a].get("normalized", False)
+                )
                 slots.append(Slot(index, node["mesh"], k, local @ world[:3, :3].T + world[:3, 3]))
         stack.extend((child, world) for child in reversed(node.get("children", [])))
     return slots
@@ -240,8 +254,21 @@ def read_ao_gltf(path: str | Path) -> np.ndarray:
             name = doc.json["nodes"][slot.node].get("name", slot.node)
             raise InputError(path, f"node {name!r} has a primitive without _AO")
         a = attributes["_AO"]
-        values.append(as_float(accessor_values(doc, a), doc.json["accessors"][a].get("normalized", False))[:, 0])
+        values.append(
+            as_float(accessor_values(doc, a), doc.json["accessors"][a].get("normalized", False))[
+                :, 0
+            ]
+        )
     return np.concatenate(values) if values else np.zeros(0)
+
+
+def check_images(doc: Document) -> None:
+    """Raise :class:`InputError` for an image file the document refers to but that is
+    missing (a GLB output embeds them)."""
+    for image in doc.json.get("images", []):
+        uri = image.get("uri")
+        if uri and not uri.startswith("data:") and not (doc.path.parent / unquote(uri)).is_file():
+            raise InputError(doc.path, f"image {uri!r} not found; a GLB output embeds its images")
 
 
 def check_channel(doc: Document, channel: str) -> None:
@@ -250,7 +277,8 @@ def check_channel(doc: Document, channel: str) -> None:
             doc.json["meshes"][s.mesh]["primitives"][s.primitive]["attributes"]}  # fmt: skip
     if bare:
         raise InputError(
-            doc.path, f"--channel {channel}: {len(bare)} primitives have no vertex colours (COLOR_0)"
+            doc.path,
+            f"--channel {channel}: {len(bare)} primitives have no vertex colours (COLOR_0)",
         )
 
 
@@ -312,8 +340,9 @@ def write_gltf(
     by several nodes is given one copy per further node, sharing every accessor but
     ``_AO`` and ``COLOR_0``: each instance keeps its own AO. Other inputs get a new
     document: one node and mesh per part with POSITION, NORMAL, triangle indices,
-    ``_AO`` (and ``COLOR_0``), under a root node turning Z-up into glTF's Y-up and
-    scaling to metres. Provenance goes into ``asset.extras.aobake``.
+    ``_AO`` (and ``COLOR_0``), a PLY input's UVs and colours too, under a root node
+    turning Z-up into glTF's Y-up and scaling to metres. Provenance goes into
+    ``asset.extras.aobake``.
 
     Raises
     ------
@@ -332,17 +361,31 @@ def write_gltf(
         gl = copy.deepcopy(doc.json)
         blob = _Blob(gl, len(gl.setdefault("buffers", [])))
         _add_ao(doc, gl, blob, surface, ao32, color=color, channel=channel)
-    elif channel is not None:
-        raise InputError(surface.source, f"--channel {channel}: the mesh has no vertex colours for glTF output")
+    elif channel is not None and not ply_has_colors(surface):
+        raise InputError(
+            surface.source, f"--channel {channel}: the mesh has no vertex colours to write into"
+        )
     else:
         doc = None
         gl = {"asset": {"version": "2.0"}, "buffers": []}
         blob = _Blob(gl, 0)
-        _new_document(gl, blob, surface, ao32, color=color, up_axis=up_axis, meters_per_unit=meters_per_unit)
+        _new_document(
+            gl,
+            blob,
+            surface,
+            ao32,
+            color=color,
+            channel=channel,
+            up_axis=up_axis,
+            meters_per_unit=meters_per_unit,
+        )
     asset = gl.setdefault("asset", {"version": "2.0"})
     extras = asset.setdefault("extras", {})
     if isinstance(extras, dict) and custom_data:
-        extras["aobake"] = {k: v if isinstance(v, (str, int, float, bool)) else str(v) for k, v in custom_data.items()}
+        extras["aobake"] = {
+            k: v if isinstance(v, (str, int, float, bool)) else str(v)
+            for k, v in custom_data.items()
+        }
     if path.suffix.lower() == ".glb":
         data = _glb_bytes(doc, gl, blob)
     else:
@@ -354,7 +397,9 @@ def write_gltf(
         raise OutputError(f"{path.name}: cannot write ({exc.strerror or exc})") from exc
 
 
-def _add_ao(doc: Document, gl: dict, blob: _Blob, surface, ao32, *, color: bool, channel: str | None) -> None:
+def _add_ao(
+    doc: Document, gl: dict, blob: _Blob, surface, ao32, *, color: bool, channel: str | None
+) -> None:
     """``_AO`` (and colours) on every matched primitive; instanced meshes copied per node."""
     owner: dict[int, int] = {}  # source mesh -> the node that keeps it
     node_mesh: dict[int, int] = {}  # node -> the mesh it now uses
@@ -370,7 +415,9 @@ def _add_ao(doc: Document, gl: dict, blob: _Blob, surface, ao32, *, color: bool,
         attributes = primitive["attributes"]
         attributes["_AO"] = blob.accessor(values, bounds=True)
         if channel is not None:
-            attributes["COLOR_0"] = _packed_colors(doc, blob, attributes.get("COLOR_0"), values, channel)
+            attributes["COLOR_0"] = _packed_colors(
+                doc, blob, attributes.get("COLOR_0"), values, channel
+            )
         elif color:
             attributes["COLOR_0"] = blob.accessor(np.repeat(values[:, None], 3, axis=1))
 
@@ -378,7 +425,9 @@ def _add_ao(doc: Document, gl: dict, blob: _Blob, surface, ao32, *, color: bool,
 def _packed_colors(doc: Document, blob: _Blob, index: int | None, values, channel: str) -> int:
     """A new COLOR_0 accessor: the source's colours with ``values`` in one channel."""
     if index is None:
-        raise InputError(doc.path, f"--channel {channel}: a primitive has no vertex colours (COLOR_0)")
+        raise InputError(
+            doc.path, f"--channel {channel}: a primitive has no vertex colours (COLOR_0)"
+        )
     a = doc.json["accessors"][index]
     colors = accessor_values(doc, index)
     column = CHANNELS[channel]
@@ -388,25 +437,84 @@ def _packed_colors(doc: Document, blob: _Blob, index: int | None, values, channe
     return blob.accessor(colors, normalized=a.get("normalized", False))
 
 
-def _new_document(gl, blob, surface, ao32, *, color, up_axis, meters_per_unit) -> None:
-    """One node, mesh and primitive per part, positions relative to the part's centre."""
+#: PLY texture-coordinate property pairs, in the order they are looked for.
+PLY_UV_NAMES = (("s", "t"), ("u", "v"), ("texture_u", "texture_v"), ("texture_s", "texture_t"))
+
+
+def ply_has_colors(surface) -> bool:
+    """True when the surface is a PLY input with ``red green blue`` vertex colours."""
+    kept = surface.metadata.get("ply")
+    columns = {} if kept is None else kept.data.elements["vertex"].properties
+    return len(surface.parts) == 1 and all(
+        isinstance(columns.get(c), np.ndarray) for c in ("red", "green", "blue")
+    )
+
+
+def _ply_attributes(blob: _Blob, surface, part, channel: str | None) -> dict:
+    """A PLY input's UVs (``TEXCOORD_0``, v flipped to glTF's top-left origin) and colours
+    (``COLOR_0`` values, not yet an accessor). Colours: 8-bit sRGB bytes become linear
+    floats (the grey a viewer showed stays the same); with ``channel`` they stay the
+    stored numbers (normalised integers), since packed channels are data."""
+    kept = surface.metadata.get("ply")
+    if kept is None or len(surface.parts) != 1:
+        return {}
+    columns = kept.data.elements["vertex"].properties
+    out: dict = {}
+    for u, v in PLY_UV_NAMES:
+        if isinstance(columns.get(u), np.ndarray) and isinstance(columns.get(v), np.ndarray):
+            uv = np.column_stack([columns[u], 1.0 - np.asarray(columns[v], dtype=np.float64)])
+            out["TEXCOORD_0"] = blob.accessor(uv.astype(np.float32))
+            break
+    if not ply_has_colors(surface):
+        return out
+    names = [c for c in ("red", "green", "blue", "alpha") if isinstance(columns.get(c), np.ndarray)]
+    stored = np.column_stack([columns[c] for c in names])
+    if channel is not None and CHANNELS[channel] >= stored.shape[1]:
+        stored = np.column_stack([stored, np.zeros(len(stored), dtype=stored.dtype)])
+    scale = float(np.iinfo(stored.dtype).max) if stored.dtype.kind in "iu" else 1.0
+    if channel is not None:  # glTF colours are ubyte, ushort or float
+        ok = stored.dtype in (np.uint8, np.uint16)
+        out["COLOR_0"] = stored if ok else np.clip(stored / scale, 0.0, 1.0).astype(np.float32)
+        return out
+    linear = np.clip(stored / scale, 0.0, 1.0)
+    linear[:, :3] = srgb_to_linear(linear[:, :3])  # alpha is not a colour: kept linear
+    out["COLOR_0"] = linear.astype(np.float32)
+    return out
+
+
+def _new_document(gl, blob, surface, ao32, *, color, channel, up_axis, meters_per_unit) -> None:
+    """One node, mesh and primitive per part, positions relative to the part's centre; a
+    PLY input's UVs and colours come along (:func:`_ply_attributes`)."""
     children = []
     gl["meshes"], gl["nodes"] = [], []
     for part in surface.parts:
         s = slice(part.vertex_start, part.vertex_stop)
         positions = surface.positions[s]
         centre = 0.5 * (positions.min(axis=0) + positions.max(axis=0))
-        attributes = {"POSITION": blob.accessor((positions - centre).astype(np.float32), bounds=True)}
+        attributes = {
+            "POSITION": blob.accessor((positions - centre).astype(np.float32), bounds=True)
+        }
         normals = surface.normals[s]
         if np.abs(np.linalg.norm(normals, axis=1) - 1.0).max(initial=0.0) < 1e-3:  # glTF: unit only
             attributes["NORMAL"] = blob.accessor(normals.astype(np.float32))
+        attributes.update(_ply_attributes(blob, surface, part, channel))
         attributes["_AO"] = blob.accessor(ao32[s], bounds=True)
-        if color:
+        if channel is not None:
+            colors = attributes.pop("COLOR_0")
+            colors[:, CHANNELS[channel]] = quantize(ao32[s], colors.dtype)
+            attributes["COLOR_0"] = blob.accessor(colors, normalized=colors.dtype.kind == "u")
+        elif color:
             attributes["COLOR_0"] = blob.accessor(np.repeat(ao32[s, None], 3, axis=1))
+        elif "COLOR_0" in attributes:
+            attributes["COLOR_0"] = blob.accessor(attributes["COLOR_0"])
         faces = surface.faces[part.face_start : part.face_stop] - part.vertex_start
         indices = blob.accessor(faces.reshape(-1).astype(np.uint32), target=_ELEMENT_ARRAY_BUFFER)
-        gl["meshes"].append({"name": part.name, "primitives": [{"attributes": attributes, "indices": indices}]})
-        gl["nodes"].append({"name": part.name, "mesh": len(gl["meshes"]) - 1, "translation": centre.tolist()})
+        gl["meshes"].append(
+            {"name": part.name, "primitives": [{"attributes": attributes, "indices": indices}]}
+        )
+        gl["nodes"].append(
+            {"name": part.name, "mesh": len(gl["meshes"]) - 1, "translation": centre.tolist()}
+        )
         children.append(len(gl["nodes"]) - 1)
     root = {"name": Path(surface.source).stem or "aobake", "children": children}
     if up_axis == "Z":  # -90 degrees about x: +Z becomes glTF's +Y
@@ -441,7 +549,9 @@ def _glb_bytes(doc: Document | None, gl: dict, blob: _Blob) -> bytes:
         try:
             data = file.read_bytes()
         except OSError as exc:
-            raise InputError(doc.path, f"cannot read image {uri!r} to embed in the GLB ({exc.strerror or exc})") from exc
+            raise InputError(
+                doc.path, f"cannot read image {uri!r} to embed in the GLB ({exc.strerror or exc})"
+            ) from exc
         chunk += b"\0" * (-len(chunk) % 4)
         gl["bufferViews"].append({"buffer": 0, "byteOffset": len(chunk), "byteLength": len(data)})
         chunk += data

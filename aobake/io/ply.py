@@ -391,6 +391,8 @@ def _element_bytes(count: int, props, columns: dict) -> bytes:
     at = starts.copy()  # where the next property of each row goes
 
     def scatter(where: np.ndarray, values: np.ndarray) -> None:
+        if not len(where):  # no rows, or every list empty
+            return
         raw = np.ascontiguousarray(values).view(np.uint8).reshape(len(where), -1)
         out[where[:, None] + np.arange(raw.shape[1])] = raw
 
