@@ -112,8 +112,8 @@ def load_field(path: str | Path) -> AOField:
             table = z["table"] if "table" in names else None
     except InputError:
         raise
-    except FileNotFoundError:
-        raise InputError(path, "no such file") from None
+    except FileNotFoundError:  # removed since check_input_file
+        raise InputError(path, "file not found") from None
     except (OSError, ValueError, EOFError, zipfile.BadZipFile, KeyError) as exc:
         reason = str(exc).splitlines()[0][:120] if str(exc) else type(exc).__name__
         raise InputError(path, f"not a readable field file ({reason})") from None
