@@ -447,12 +447,12 @@ def pending_jobs(jobs, outdir, settings, formats, force) -> tuple[list, dict, di
     return pending, old, hashes, key, described
 
 
-def _error_line(exc: BaseException, retries: int) -> str:
+def _error_line(exc: BaseException) -> str:
     from .io.common import short_reason
 
     name = type(exc).__name__
     if name == "KilledWorker":
-        return f"the worker died while baking it ({retries + 1} attempts; out of memory?)"
+        return "the worker baking it died, also on every retry (out of memory? killed?)"
     if name == "CancelledError":
         return "cancelled"
     return f"{name}: {short_reason(exc)}"
@@ -475,20 +475,20 @@ def _start_client(scheduler: str | None, workers: int | None, retries: int):
         workers = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
     # A worker process that dies while baking (killed, out of memory) is restarted by its
     # nanny and the task rerun, up to `retries` times.
-    dask.config.set({"distributed.scheduler.allowed-failures": max(0, retries)})
     # Ctrl-C goes to the whole process group: the workers ignore it (inherited) and this
     # process cancels their tasks instead, so nothing is killed mid-write.
     previous = signal.getsignal(signal.SIGINT) if _main_thread() else None
     if previous is not None:
         signal.signal(signal.SIGINT, signal.SIG_IGN)
     try:
-        cluster = LocalCluster(
-            n_workers=workers,
-            threads_per_worker=1,
-            processes=True,
-            dashboard_address="127.0.0.1:0",
-            silence_logs=logging.CRITICAL,
-        )
+        with dask.config.set({"distributed.scheduler.allowed-failures": max(0, retries)}):
+            cluster = LocalCluster(
+                n_workers=workers,
+                threads_per_worker=1,
+                processes=True,
+                dashboard_address="127.0.0.1:0",
+                silence_logs=logging.CRITICAL,
+            )
     finally:
         if previous is not None:
             signal.signal(signal.SIGINT, previous)
@@ -617,7 +617,7 @@ def _run(pending, outdir, settings, split, retries, client, scheduler, workers, 
             try:
                 rec = future.result()
             except Exception as exc:  # retries used up, worker lost, cancelled
-                rec = {"status": "failed", "error": _error_line(exc, retries), "worker": ""}
+                rec = {"status": "failed", "error": _error_line(exc), "worker": ""}
             rec.update(
                 input=job.key,
                 source=job.source,

@@ -303,7 +303,7 @@ _BAKE_OPTIONS = [
         "--channel",
         type=click.Choice(["R", "G", "B", "A"]),
         default=None,
-        help="Write ao (linear) into this channel of the input's vertex colours, keeping the others (PLY, glTF).",
+        help="Write ao (linear) into this channel of the input's vertex colours, keeping the others (PLY, glTF; USD input: displayColor, A = displayOpacity).",
     ),
     click.option(
         "--weld", is_flag=True, help="Bake with coincident vertices merged (STL soups, split seams); written per input vertex."

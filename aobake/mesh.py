@@ -78,8 +78,11 @@ class Surface:
         Facts read from the file: ``"format"`` (``"PLY"``, ``"USD"``...) and, where the
         format defines them, ``"up_axis"`` (``"Y"``/``"Z"``) and ``"meters_per_unit"``
         (USD stage metrics; glTF is always Y up, meters; PLY: as an aobake PLY records
-        them); what writers need to keep the input: ``"ply"`` (the PLY as read) and
-        ``"gltf_path"`` (the glTF document). Empty for array input.
+        them); what writers need to keep the input: ``"ply"`` (the PLY as read),
+        ``"gltf_path"`` (the glTF document) and, for USD, ``"path"`` (the resolved
+        source the overlay sublayers), ``"time"`` (the time code read, None for the
+        default time) and ``"animated"`` (meshes with time-varying points or
+        transforms). Empty for array input.
     """
 
     positions: FloatArray

@@ -837,10 +837,8 @@ class WarmUpReport:
 def warm_up_scene():
     """The warm-up's built-in scene: a unit cube resting on an 8 x 8 grid (+Y up), with
     contacts, a crevice and open ground: (positions, faces) in float64 / int64."""
-    import trimesh
-
-    cube = trimesh.creation.box(extents=(1.0, 1.0, 1.0))
-    cube_p = np.asarray(cube.vertices, dtype=np.float64) + [0.0, 0.5, 0.0]
+    cube_v, cube_f = _unit_cube()
+    cube_p = cube_v + [0.0, 0.5, 0.0]
     t = np.linspace(-2.0, 2.0, 9)
     x, z = np.meshgrid(t, t, indexing="ij")
     grid_p = np.c_[x.ravel(), np.zeros(x.size), z.ravel()]
@@ -848,8 +846,27 @@ def warm_up_scene():
     a = (i * 9 + j).ravel()
     grid_f = np.vstack([np.c_[a, a + 1, a + 10], np.c_[a, a + 10, a + 9]])  # facing +Y
     positions = np.vstack([cube_p, grid_p])
-    faces = np.vstack([np.asarray(cube.faces, dtype=np.int64), grid_f + len(cube_p)])
+    faces = np.vstack([cube_f, grid_f + len(cube_p)])
     return positions, faces
+
+
+def _unit_cube():
+    """A unit cube centred at the origin: 8 corners (bit k of the index: axis k at +0.5)
+    and 12 outward-facing triangles."""
+    corners = np.array([[(k >> a & 1) - 0.5 for a in range(3)] for k in range(8)], dtype=np.float64)
+    quads = [(0, 2, 3, 1), (4, 5, 7, 6), (0, 1, 5, 4), (2, 6, 7, 3), (0, 4, 6, 2), (1, 3, 7, 5)]
+    faces = np.array([t for a, b, c, d in quads for t in ((a, b, c), (a, c, d))], dtype=np.int64)
+    return corners, faces
+
+
+def _write_plain_ply(path: Path, positions, faces) -> None:
+    """A minimal ASCII PLY of a triangle mesh (the warm-up's inputs)."""
+    lines = ["ply", "format ascii 1.0", f"element vertex {len(positions)}", "property double x",
+             "property double y", "property double z", f"element face {len(faces)}",
+             "property list uchar int vertex_indices", "end_header"]  # fmt: skip
+    lines += [" ".join(repr(float(c)) for c in p) for p in positions]
+    lines += ["3 " + " ".join(str(int(i)) for i in f) for f in faces]
+    path.write_text("\n".join(lines) + "\n")
 
 
 def warm_up(progress: Progress | None = None) -> WarmUpReport:
@@ -860,16 +877,13 @@ def warm_up(progress: Progress | None = None) -> WarmUpReport:
     removed afterwards. Seconds on a warm cache; a cold one takes what compiling takes."""
     import tempfile
 
-    import trimesh
-
     steps = []
     with CompileWatch() as watch, tempfile.TemporaryDirectory(prefix="aobake-warm-up-") as tmp:
         t0 = perf_counter()
         d = Path(tmp)
         positions, faces = warm_up_scene()
-        trimesh.Trimesh(positions, faces, process=False).export(d / "scene.ply")
-        cube = trimesh.creation.box(extents=(1.0, 1.0, 1.0))
-        cube.export(d / "cube.ply")
+        _write_plain_ply(d / "scene.ply", positions, faces)
+        _write_plain_ply(d / "cube.ply", *_unit_cube())
         for method in METHODS:
             bake_file(d / "scene.ply", [d / f"{method}.ply", d / f"{method}.usda"], method=method,
                       progress=progress)
@@ -877,7 +891,7 @@ def warm_up(progress: Progress | None = None) -> WarmUpReport:
         fit_field_file(d / "cube.ply", d / "cube.npz", progress=progress, resolution=4, radial_samples=8)
         steps.append("field")
         grid = d / "grid.ply"
-        trimesh.Trimesh(positions[8:], faces[12:] - 8, process=False).export(grid)
+        _write_plain_ply(grid, positions[8:], faces[12:] - 8)
         bake_file(grid, d / "grid_field.ply", method=METHODS[0], fields=[(d / "cube.npz", (0.0, 0.5, 0.0))],
                   progress=progress)
         steps.append("bake --field")

@@ -9,7 +9,7 @@ up-to-date rerun, and one large mesh baked as 2 vertex ranges against one unspli
    must be byte-identical. Per-input overhead = (wall x 2 - the bakes' compute seconds
    from the manifest) / meshes: what each way spends besides tracing. Then the batch is
    run again (everything up to date): its wall time.
-2. Large mesh: ``--big`` (4 M) vertices (4 icospheres on a floor grid), ``--big-rays`` (16)
+2. Large mesh: ``--big`` (4 M) vertices (4 icospheres on a floor grid), ``--big-rays`` (64)
    rays, PLY out. ``aobake bake`` (all cores) against ``aobake batch --split 2 --workers 2``
    (each worker 1 thread, one range each, its own scene). The goal's bound is
    1.1 x (unsplit wall + one more load and scene build: ``load_mesh`` + ``Tracer`` +
@@ -156,7 +156,7 @@ def main() -> None:
     parser.add_argument("--meshes", type=int, default=200)
     parser.add_argument("--rays", type=int, default=256)
     parser.add_argument("--big", type=int, default=4_000_000)
-    parser.add_argument("--big-rays", type=int, default=16)
+    parser.add_argument("--big-rays", type=int, default=64)
     parser.add_argument("--quick", action="store_true", help="20 meshes, a 400k-vertex mesh")
     args = parser.parse_args()
     if args.quick:

@@ -77,3 +77,36 @@ def test_fuzz_closed_box_reads_closed_at_any_scale(scale, seed):
     faces = np.vstack([box.faces[:, ::-1], [[8, 9, 10]]])
     ao = aobake.bake(surface_from_arrays(positions, faces), "embree", n_rays=8, seed=seed)
     np.testing.assert_array_equal(np.asarray(ao), 0.0)
+
+
+@st.composite
+def needles(draw):
+    """1-3 needle or almost collinear triangles (widths 1e-16..1e-3 of their length),
+    sometimes over a floor, at a scale from 1e-30 to 2e38."""
+    rng = np.random.default_rng(draw(st.integers(0, 2**32 - 1)))
+    points, faces = [], []
+    for _ in range(draw(st.integers(1, 3))):
+        a = rng.normal(size=3)
+        d = rng.normal(size=3)
+        d /= np.linalg.norm(d)
+        perp = np.cross(d, rng.normal(size=3))
+        perp /= np.linalg.norm(perp)
+        length, width = 10 ** rng.uniform(-1, 1), 10 ** rng.uniform(-16, -3)
+        if draw(st.booleans()):
+            tri = [a, a + length * d, a + rng.uniform(0, 1) * length * d + width * perp]
+        else:
+            tri = [a, a + length * d, a + 2 * length * d * (1 + width)]
+        faces.append([len(points), len(points) + 1, len(points) + 2])
+        points += tri
+    if draw(st.booleans()):
+        k = len(points)
+        points += [[-5, -5, -3], [5, -5, -3], [5, 5, -3], [-5, 5, -3]]
+        faces += [[k, k + 1, k + 2], [k, k + 2, k + 3]]
+    scale = draw(st.sampled_from([1e-30, 1.0, 1e20, 1e30, 2e38]))
+    return np.array(points, dtype=np.float64) * scale, np.array(faces)
+
+
+@settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(mesh=needles(), passes=st.sampled_from([1, 2]))
+def test_fuzz_needles_bunnell(mesh, passes):
+    _check(*mesh, "bunnell", passes=passes)

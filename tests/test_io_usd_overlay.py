@@ -470,7 +470,7 @@ def test_overlay_refusals_are_one_line_errors(runner, tmp_path):
     )
     _one_line_error(
         runner, [str(source), "-o", str(source)], tmp_path,
-        "scene.usda: is the USD source itself; write the overlay to a new file",
+        "scene.usda: is also an input; refusing to write over it",
     )
     _one_line_error(
         runner, [str(ply), "-o", str(tmp_path / "p.ply"), "--time", "3"], tmp_path,
@@ -519,3 +519,76 @@ def test_list_of_names_in_custom_data(tmp_path):
     assert list(own["fields"]) == ["rock.npz", "tree.npz"]
     layer = Sdf.Layer.OpenAsAnonymous(str(tmp_path / "over.usda"))
     assert list(layer.customLayerData["aobake"]["fields"]) == ["rock.npz", "tree.npz"]
+
+
+# -- --channel: ao into the source's own colours -----------------------------------------
+
+
+def _coloured_scene(tmp_path, floor_interpolation):
+    """The scene with seeded random colours: uniform on the box, ``floor_interpolation``
+    on the floor. Returns the file and, per baked mesh, its colours as authored."""
+    source, _, _ = _scene(tmp_path)
+    rng = np.random.default_rng(7)
+    stage = Usd.Stage.Open(str(source))
+    authored = {}
+    for path, interpolation in zip(BAKED, ("uniform", floor_interpolation), strict=True):
+        mesh = UsdGeom.Mesh(stage.GetPrimAtPath(path))
+        n = {
+            "constant": 1,
+            "uniform": len(mesh.GetFaceVertexCountsAttr().Get()),
+            "vertex": len(mesh.GetPointsAttr().Get()),
+            "faceVarying": len(mesh.GetFaceVertexIndicesAttr().Get()),
+        }[interpolation]
+        colours = rng.random((n, 3)).astype(np.float32)
+        mesh.CreateDisplayColorPrimvar(interpolation).Set(Vt.Vec3fArray.FromNumpy(colours))
+        authored[path] = (interpolation, colours)
+    stage.GetRootLayer().Save()
+    del stage
+    return source, authored
+
+
+@pytest.mark.parametrize("floor_interpolation", ["constant", "vertex", "faceVarying"])
+def test_channel_writes_ao_into_one_colour_component(tmp_path, floor_interpolation):
+    source, authored = _coloured_scene(tmp_path, floor_interpolation)
+    out = tmp_path / "o.usda"
+    _bake(source, out, channel="G")
+    stage = Usd.Stage.Open(str(out))
+    for path, (interpolation, colours) in authored.items():
+        mesh = UsdGeom.Mesh(stage.GetPrimAtPath(path))
+        counts = np.asarray(mesh.GetFaceVertexCountsAttr().Get())
+        indices = np.asarray(mesh.GetFaceVertexIndicesAttr().Get())
+        ao = _ao(stage, path)
+        primvar = UsdGeom.PrimvarsAPI(mesh).GetPrimvar("displayColor")
+        got = np.asarray(primvar.ComputeFlattened())
+        # per-face colours survive as faceVarying; others become one colour per vertex
+        if interpolation in ("uniform", "faceVarying"):
+            assert primvar.GetInterpolation() == "faceVarying"
+            kept = np.repeat(colours, counts, axis=0) if interpolation == "uniform" else colours
+            np.testing.assert_array_equal(got[:, 1], ao[indices])
+        else:
+            assert primvar.GetInterpolation() == "vertex"
+            kept = np.repeat(colours, len(ao), axis=0) if interpolation == "constant" else colours
+            np.testing.assert_array_equal(got[:, 1], ao)
+        np.testing.assert_array_equal(got[:, [0, 2]], kept[:, [0, 2]])  # bit-identical
+    assert ao.min() < 0.9
+
+
+def test_channel_a_writes_display_opacity(tmp_path):
+    source, authored = _coloured_scene(tmp_path, "vertex")
+    out = tmp_path / "o.usdz"
+    _bake(source, out, channel="A")
+    stage = Usd.Stage.Open(str(out))
+    for path, (_, colours) in authored.items():
+        api = UsdGeom.PrimvarsAPI(stage.GetPrimAtPath(path))
+        opacity = api.GetPrimvar("displayOpacity")
+        assert opacity.GetInterpolation() == "vertex"
+        np.testing.assert_array_equal(np.asarray(opacity.Get()), _ao(stage, path))
+        np.testing.assert_array_equal(np.asarray(api.GetPrimvar("displayColor").Get()), colours)
+
+
+def test_channel_without_colours_is_refused_before_baking(runner, tmp_path):
+    source, _, _ = _scene(tmp_path)
+    _one_line_error(
+        runner, [str(source), "-o", str(tmp_path / "o.usda"), "--channel", "R"], tmp_path,
+        "scene.usda: --channel R: /World/props/box has no primvars:displayColor to write into",
+    )

@@ -22,7 +22,14 @@ import aobake.pipeline
 from aobake.checks import check_result
 from aobake.cli import main
 from aobake.errors import AobakeError, InputError, NumericalError
+from aobake.progress import COMPILING
 from aobake.testing import scenes
+
+
+def _said(result) -> str:
+    """What a command printed, without the one-off "compiling kernels" notice of a cold
+    numba cache (a progress note, printed when compiling starts)."""
+    return "".join(line for line in result.output.splitlines(True) if line.rstrip("\n") != COMPILING)
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -38,13 +45,6 @@ def scene_ply(tmp_path) -> Path:
     path = tmp_path / "scene.ply"
     trimesh.Trimesh(s.positions, s.faces, process=False).export(path)
     return path
-
-
-def _without_compiling(output: str) -> str:
-    """The output without the cold-cache notice ("compiling kernels (first run only)")."""
-    from aobake.progress import COMPILING
-
-    return "".join(line for line in output.splitlines(keepends=True) if not line.startswith(COMPILING))
 
 
 _MESH = """def Mesh "m" {
@@ -79,7 +79,7 @@ def test_usd_stderr_is_shown_as_one_warning_line_on_success(tmp_path):
         capture_output=True, text=True, env=dict(os.environ, PYTHONPATH=str(REPO)),
     )
     assert proc.returncode == 0, proc.stderr
-    lines = _without_compiling(proc.stderr).splitlines()
+    lines = [line for line in proc.stderr.splitlines() if line != COMPILING]
     assert len(lines) == 1 and lines[0].startswith("Warning: warn.usda: Could not load sublayer @missing.usda@")
 
 
@@ -87,33 +87,33 @@ def test_usd_stderr_is_shown_as_one_warning_line_on_success(tmp_path):
 def test_warnings_are_held_back_when_the_command_fails(runner, scene_ply, tmp_path, monkeypatch, source):
     real = aobake.pipeline.as_surface
 
-    def noisy(mesh, *args, **kwargs):
+    def noisy(mesh, time=None):  # as_surface's signature (time: USD inputs)
         if source == "numpy":
             with np.errstate(divide="warn"):
                 np.float64(1.0) / np.zeros(1)
         else:
             logging.getLogger("trimesh").warning("face normals did not match")
-        real(mesh, *args, **kwargs)
+        real(mesh, time)
         raise InputError(mesh, "refused after the warning")
 
     monkeypatch.setattr(aobake.pipeline, "as_surface", noisy)
     result = runner.invoke(main, ["bake", str(scene_ply), "-o", str(tmp_path / "o.ply"), "--rays", "4"])
     assert result.exit_code == 1
-    assert _without_compiling(result.output) == "Error: scene.ply: refused after the warning\n"
+    assert _said(result) == "Error: scene.ply: refused after the warning\n"
 
 
 def test_warnings_are_shown_once_each_after_success(runner, scene_ply, tmp_path, monkeypatch):
     real = aobake.pipeline.as_surface
 
-    def noisy(mesh, *args, **kwargs):
+    def noisy(mesh, time=None):
         for _ in range(3):
             warnings.warn("odd  but\nfine", UserWarning)  # noqa: B028
-        return real(mesh, *args, **kwargs)
+        return real(mesh, time)
 
     monkeypatch.setattr(aobake.pipeline, "as_surface", noisy)
     result = runner.invoke(main, ["bake", str(scene_ply), "-o", str(tmp_path / "o.ply"), "--rays", "4", "-q"])
     assert result.exit_code == 0, result.output
-    assert _without_compiling(result.output) == "Warning: odd but fine\n"
+    assert _said(result) == "Warning: odd but fine\n"
 
 
 def test_bunnell_non_finite_error_is_one_line_naming_the_file(runner, scene_ply, tmp_path, monkeypatch):
@@ -129,7 +129,7 @@ def test_bunnell_non_finite_error_is_one_line_naming_the_file(runner, scene_ply,
     monkeypatch.setattr(estimator, "combine_passes", broken)
     result = runner.invoke(main, ["bake", str(scene_ply), "-o", str(tmp_path / "o.ply"), "--method", "bunnell"])
     assert result.exit_code == 1
-    assert _without_compiling(result.output) == (
+    assert _said(result) == (
         "Error: scene.ply: bunnell: 1 values of ao outside [0.0, 1.0] or non-finite (first: vertex 3, value nan)\n"
     )
     assert sorted(p.name for p in tmp_path.iterdir()) == ["scene.ply"]

@@ -247,14 +247,16 @@ def write_bake(
             comments=comments,
         )
     else:
-        if channel is not None:
-            raise FormatError(f"{Path(path).name}: --channel is not written to USD (use PLY or glTF output)")
+        mode = usd_output_mode(path, usd_overlay.usd_source(surface) is not None, overlay)
+        if channel is not None and mode == "usd":
+            raise FormatError(_usd_channel_refusal(path, surface))
         writer = {
             "usd": write_usd,
             "overlay": usd_overlay.write_usd_overlay,
             "copy": usd_overlay.write_usd_copy,
             "usdz": usd_overlay.write_usdz,
-        }[usd_output_mode(path, usd_overlay.usd_source(surface) is not None, overlay)]
+        }[mode]
+        extra = {} if channel is None else {"channel": channel}
         writer(
             path,
             surface,
@@ -263,15 +265,24 @@ def write_bake(
             up_axis=up_axis,
             meters_per_unit=meters_per_unit,
             custom_data=custom_data,
+            **extra,
         )
+
+
+def _usd_channel_refusal(path, surface) -> str:
+    return (
+        f"{Path(path).name}: --channel is not written to USD from a "
+        f"{surface.metadata.get('format', 'non-USD')} input; it writes into a USD input's own "
+        "displayColor (use PLY or glTF output)"
+    )
 
 
 def check_outputs(surface: Surface, outputs, channel: str | None = None) -> None:
     """Refuse, before baking, what the writers would refuse after it: a glTF input whose
     meshes cannot be found in its document again (glTF output) or whose image files are
-    missing (GLB output embeds them), and ``--channel`` where an
-    output cannot take it (USD output, an input without vertex colours: PLY ``red green
-    blue``, glTF ``COLOR_0``)."""
+    missing (GLB output embeds them), and ``--channel`` where an output cannot take it
+    (USD output of a non-USD input, an input without vertex colours: PLY ``red green
+    blue``, glTF ``COLOR_0``, USD ``displayColor``)."""
     kinds = {output_kind(path) for path in outputs}
     if "gltf" in kinds and surface.metadata.get("gltf_path"):
         doc = gltf.read_document(surface.metadata["gltf_path"])
@@ -283,7 +294,10 @@ def check_outputs(surface: Surface, outputs, channel: str | None = None) -> None
     for path in outputs:
         kind = output_kind(path)
         if kind in ("usd", "usdz"):
-            raise FormatError(f"{Path(path).name}: --channel is not written to USD (use PLY or glTF output)")
+            if usd_overlay.usd_source(surface) is None:
+                raise FormatError(_usd_channel_refusal(path, surface))
+            usd_overlay.check_channel(surface, channel)
+            continue
         kept = surface.metadata.get("ply")
         if kind == "ply" and kept is not None:
             if ply.vertex_colors(kept) is None:

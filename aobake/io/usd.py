@@ -436,7 +436,8 @@ def read_parts(path: Path, metadata: dict, time: float | None = None) -> list[Ra
         raise InputError(path, f"time {time} is not a finite time code")
     default = Usd.TimeCode.Default()
     meshes = list(baked_meshes(stage, default if time is None else Usd.TimeCode(time)))
-    animated = [m for m in meshes if _time_varying(m)]
+    moving: dict = {}  # prim path -> its transform (or an ancestor's) is time-sampled
+    animated = [m for m in meshes if _time_varying(m, moving)]
     if time is None:
         first = _first_sample_without_default(animated)
         code = default if first is None else Usd.TimeCode(first)
@@ -491,8 +492,30 @@ def _geometry_attributes(prim):
     return attributes
 
 
-def _time_varying(prim) -> bool:
-    return any(a and a.GetNumTimeSamples() > 0 for a in _geometry_attributes(prim))
+def _time_varying(prim, moving: dict) -> bool:
+    """Whether a mesh's points, topology or world transform have time samples
+    (``moving`` memoizes the transforms per prim, shared by siblings)."""
+    from pxr import UsdGeom
+
+    mesh = UsdGeom.Mesh(prim)
+    own = (mesh.GetPointsAttr(), mesh.GetFaceVertexCountsAttr(), mesh.GetFaceVertexIndicesAttr())
+    return any(a and a.GetNumTimeSamples() > 0 for a in own) or _transform_moves(prim, moving)
+
+
+def _transform_moves(prim, moving: dict) -> bool:
+    from pxr import UsdGeom
+
+    path = prim.GetPath()
+    if path not in moving:
+        xformable = UsdGeom.Xformable(prim)
+        ops = xformable.GetOrderedXformOps() if xformable else []
+        result = any(op.GetAttr().GetNumTimeSamples() > 0 for op in ops)
+        parent = prim.GetParent()
+        if not result and parent and not parent.IsPseudoRoot():
+            if not (xformable and xformable.GetResetXformStack()):
+                result = _transform_moves(parent, moving)
+        moving[path] = result
+    return moving[path]
 
 
 def _first_sample_without_default(prims) -> float | None:

@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import OutputError
+from ..errors import FormatError, InputError, OutputError
 from .common import atomic_write, check_ao
 
 #: Stage metadata the overlay copies from the source's root layer: a stage takes them
@@ -65,6 +65,7 @@ def write_usd_overlay(
     up_axis: str = "Y",
     meters_per_unit: float = 1.0,
     custom_data: Mapping | None = None,
+    channel: str | None = None,
 ) -> None:
     """Write a layer that sublayers the surface's USD source and adds ``primvars:ao``.
 
@@ -84,6 +85,10 @@ def write_usd_overlay(
     custom_data : mapping, optional
         Recorded as ``customLayerData["aobake"]``, with ``source`` set to the sublayer
         path and ``time`` to the time code read (``"default"`` for USD's default time).
+    channel : {"R", "G", "B", "A"}, optional
+        Write ``ao`` (linear) into this channel of each mesh's own colours:
+        ``displayColor`` for R, G, B (the other two kept bit-identical), a vertex
+        ``displayOpacity`` for A (see :func:`check_channel`).
 
     Raises
     ------
@@ -98,7 +103,7 @@ def write_usd_overlay(
     ao32 = check_ao(ao, n_vertices=surface.n_vertices, where=path.name)
     relative = _relative(source, path.resolve().parent)
     layer = _overlay_layer(
-        source, relative, surface, ao32, color, up_axis, meters_per_unit, custom_data, path
+        source, relative, surface, ao32, color, up_axis, meters_per_unit, custom_data, path, channel
     )
     _export(layer, path)
 
@@ -112,6 +117,7 @@ def write_usd_copy(
     up_axis: str = "Y",
     meters_per_unit: float = 1.0,
     custom_data: Mapping | None = None,
+    channel: str | None = None,
 ) -> None:
     """Write the surface's USD source flattened into one layer, with ``primvars:ao`` added.
 
@@ -123,7 +129,9 @@ def write_usd_copy(
     path = Path(path)
     source = _checked_source(path, surface)
     ao32 = check_ao(ao, n_vertices=surface.n_vertices, where=path.name)
-    flat = _flattened(source, path, surface, ao32, color, up_axis, meters_per_unit, custom_data)
+    flat = _flattened(
+        source, path, surface, ao32, color, up_axis, meters_per_unit, custom_data, channel
+    )
     _export(flat, path)
 
 
@@ -136,6 +144,7 @@ def write_usdz(
     up_axis: str = "Y",
     meters_per_unit: float = 1.0,
     custom_data: Mapping | None = None,
+    channel: str | None = None,
 ) -> None:
     """Write a self-contained ``.usdz`` package: for a USD input its flattened copy with
     ``primvars:ao`` (:func:`write_usd_copy`) and the textures it uses, else aobake's own
@@ -151,6 +160,12 @@ def write_usdz(
     with atomic_write(path) as tmp, tempfile.TemporaryDirectory(dir=tmp.parent) as work:
         inner = Path(work) / name
         if source is None:
+            if channel is not None:
+                raise FormatError(
+                    f"{path.name}: --channel is not written to USD from a "
+                    f"{surface.metadata.get('format', 'non-USD')} input; it writes into a "
+                    "USD input's own displayColor"
+                )
             write_usd(
                 inner,
                 surface,
@@ -163,7 +178,7 @@ def write_usdz(
         else:
             _checked_source(path, surface)
             flat = _flattened(
-                source, path, surface, ao32, color, up_axis, meters_per_unit, custom_data
+                source, path, surface, ao32, color, up_axis, meters_per_unit, custom_data, channel
             )
             _export(flat, inner)
             del flat
@@ -200,12 +215,12 @@ def _relative(source: Path, directory: Path) -> str:
         return source.as_posix()
 
 
-def _flattened(source, path, surface, ao32, color, up_axis, meters_per_unit, custom_data):
+def _flattened(source, path, surface, ao32, color, up_axis, meters_per_unit, custom_data, channel):
     """The overlay (sublayering the absolute source) composed and flattened to one layer."""
     from pxr import Usd
 
     layer = _overlay_layer(
-        source, str(source), surface, ao32, color, up_axis, meters_per_unit, custom_data, path
+        source, str(source), surface, ao32, color, up_axis, meters_per_unit, custom_data, path, channel
     )
     stage = Usd.Stage.Open(layer)
     flat = stage.Flatten()
@@ -218,7 +233,7 @@ def _flattened(source, path, surface, ao32, color, up_axis, meters_per_unit, cus
 
 
 def _overlay_layer(
-    source, sublayer, surface, ao32, color, up_axis, meters_per_unit, custom_data, out
+    source, sublayer, surface, ao32, color, up_axis, meters_per_unit, custom_data, out, channel=None
 ):
     """An anonymous layer: ``sublayer`` below, ``over`` prims with the primvars above."""
     from pxr import Sdf, Usd, UsdGeom, Vt
@@ -256,6 +271,11 @@ def _overlay_layer(
             _author_primvar(
                 spec, prim, "ao", Sdf.ValueTypeNames.FloatArray, Vt.FloatArray.FromNumpy(values)
             )
+            if channel is not None:
+                packed = _channel_primvar(prim, code, values, channel)
+                if isinstance(packed, str):
+                    raise InputError(surface.source, f"--channel {channel}: {packed}")
+                _author_primvar(spec, prim, *packed)
             if color:
                 grey = np.ascontiguousarray(np.repeat(values[:, None], 3, axis=1))
                 _author_primvar(
@@ -267,6 +287,82 @@ def _overlay_layer(
                 )
     del stage
     return layer
+
+
+def check_channel(surface, channel: str) -> None:
+    """Refuse ``--channel`` before baking when a baked mesh of the USD source has no
+    colours to write into (no authored ``primvars:displayColor``) or colours of another
+    shape than one colour per element (``elementSize`` != 1).
+
+    Raises
+    ------
+    InputError
+        ``--channel C: /World/floor has no primvars:displayColor to write into``.
+    """
+    from pxr import Usd
+
+    source = usd_source(surface)
+    time = surface.metadata.get("time")
+    code = Usd.TimeCode.Default() if time is None else Usd.TimeCode(time)
+    stage = Usd.Stage.Open(str(source))
+    for part in surface.parts:
+        prim = stage.GetPrimAtPath(part.prim_path)
+        if not prim:
+            continue  # the writer reports a source changed since it was read
+        packed = _channel_primvar(prim, code, np.ones(part.n_vertices, dtype=np.float32), channel)
+        if isinstance(packed, str):
+            raise InputError(surface.source, f"--channel {channel}: {packed}")
+
+
+def _channel_primvar(prim, code, ao: np.ndarray, channel: str):
+    """What ``--channel`` writes on one mesh, ``(name, type, value, interpolation)``, or
+    why it cannot (a str).
+
+    R, G, B: ``displayColor`` with ``ao`` in that component and the others the source's
+    (flattened, float32, so bit-identical). Constant and vertex colours become vertex
+    colours; uniform and faceVarying colours become faceVarying, each corner taking the
+    ``ao`` of its vertex, so per-face colours survive. A: ``displayOpacity`` = ``ao`` per
+    vertex (the colours themselves are left as they are).
+    """
+    from pxr import Sdf, UsdGeom, Vt
+
+    from .usd import _usd_value
+
+    where = str(prim.GetPath())
+    colour = UsdGeom.PrimvarsAPI(prim).GetPrimvar("displayColor")
+    if not colour or not colour.HasAuthoredValue():
+        return f"{where} has no primvars:displayColor to write into"
+    if colour.GetElementSize() != 1:
+        return f"{where}: displayColor has elementSize {colour.GetElementSize()}; expected 1"
+    if channel == "A":
+        return "displayOpacity", Sdf.ValueTypeNames.FloatArray, Vt.FloatArray.FromNumpy(ao), "vertex"
+    values = np.asarray(colour.ComputeFlattened(code), dtype=np.float32).reshape(-1, 3)
+    interpolation = colour.GetInterpolation()
+    tokens = UsdGeom.Tokens
+    per_corner = interpolation in (tokens.uniform, tokens.faceVarying)
+    if per_corner:
+        mesh = UsdGeom.Mesh(prim)
+        counts = np.asarray(_usd_value(mesh.GetFaceVertexCountsAttr(), code, ()), dtype=np.int64)
+        indices = np.asarray(_usd_value(mesh.GetFaceVertexIndicesAttr(), code, ()), dtype=np.int64)
+        expected = len(counts) if interpolation == tokens.uniform else len(indices)
+        target = ao[indices] if len(indices) and indices.max() < len(ao) else None
+    else:
+        expected = 1 if interpolation == tokens.constant else len(ao)
+        target = ao
+    if len(values) != expected or target is None:
+        return f"{where}: displayColor has {len(values)} {interpolation} values; expected {expected}"
+    if interpolation == tokens.uniform:
+        values = np.repeat(values, counts, axis=0)
+    elif interpolation == tokens.constant:
+        values = np.repeat(values, len(ao), axis=0)
+    values = np.array(values, dtype=np.float32)
+    values[:, "RGB".index(channel)] = target
+    return (
+        "displayColor",
+        Sdf.ValueTypeNames.Color3fArray,
+        Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(values)),
+        tokens.faceVarying if per_corner else tokens.vertex,
+    )
 
 
 def _deinstance(layer, prim, Sdf) -> None:
@@ -282,15 +378,15 @@ def _deinstance(layer, prim, Sdf) -> None:
         Sdf.CreatePrimInLayer(layer, instance).SetInfo("instanceable", False)
 
 
-def _author_primvar(spec, prim, name: str, value_type, value) -> None:
-    """``primvars:NAME`` with a vertex value on ``spec``; the source's indices for it, if
-    any, are blocked (they would re-index the new values)."""
+def _author_primvar(spec, prim, name: str, value_type, value, interpolation="vertex") -> None:
+    """``primvars:NAME`` with a (by default vertex) value on ``spec``; the source's
+    indices for it, if any, are blocked (they would re-index the new values)."""
     from pxr import Sdf, UsdGeom
 
     attr_name = f"primvars:{name}"
     attr = spec.attributes.get(attr_name) or Sdf.AttributeSpec(spec, attr_name, value_type)
     attr.default = value
-    attr.SetInfo("interpolation", UsdGeom.Tokens.vertex)
+    attr.SetInfo("interpolation", interpolation)
     source_primvar = UsdGeom.PrimvarsAPI(prim).GetPrimvar(name)
     if source_primvar and source_primvar.GetElementSize() != 1:
         attr.SetInfo("elementSize", 1)

@@ -28,7 +28,16 @@ from .bunnell import (
     receiver_at,
     settle_fill,
 )
-from .listsums import binned_sums, direction_sums, far_sums, near_disk_sums, site
+from .listsums import (
+    binned_sums,
+    binned_sums_apart,
+    direction_sums,
+    far_sums,
+    far_sums_apart,
+    near_disk_sums,
+    near_disk_sums_apart,
+    site,
+)
 from .listterms import disk_term
 from .polygon import cell_terms
 from .treewalk import S_A, S_X, S_Y, S_Z, gather
@@ -54,7 +63,6 @@ def add_cumulative(acc, f, b, r2, br2, binned):
         acc[1, kk] += b
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", parallel=True)
 def hierarchy_pass(tree, emitters, receivers, near_field, buckets, span, options, out, first,
                    fill):
     """Tree sums for the receivers of buckets ``span[0]:span[1]``: like
@@ -98,6 +106,37 @@ def hierarchy_pass(tree, emitters, receivers, near_field, buckets, span, options
         As in ``bunnell.brute_force_pass``; a receiver with a slot bins by direction even
         where its sums could not overflow a bin.
     """
+    # Compile time (docs/first-run.md): with every list sum inlined the kernel takes ~80 s
+    # of CPU to compile, with the sums compiled apart ~33 s. Apart gives the same bits
+    # only in a first pass (no levels) with the cosine measure, the default bake; other
+    # passes and the uniform measure round differently apart, so they keep them inlined.
+    first_cosine = options.measure == MEASURE_COSINE and not options.leveled
+    kernel = hierarchy_pass_apart if first_cosine else hierarchy_pass_inlined
+    kernel(tree, emitters, receivers, near_field, buckets, span, options, out, first, fill)
+
+
+@njit(cache=True, fastmath=FASTMATH, error_model="numpy", parallel=True)
+def hierarchy_pass_inlined(tree, emitters, receivers, near_field, buckets, span, options, out,
+                           first, fill):
+    """:func:`hierarchy_pass` with the list sums inlined (any pass, any measure)."""
+    _tree_pass(tree, emitters, receivers, near_field, buckets, span, options, out, first, fill,
+               far_sums, near_disk_sums, binned_sums)
+
+
+@njit(cache=True, fastmath=FASTMATH, error_model="numpy", parallel=True)
+def hierarchy_pass_apart(tree, emitters, receivers, near_field, buckets, span, options, out,
+                         first, fill):
+    """:func:`hierarchy_pass` with the list sums compiled apart (a first pass, cosine)."""
+    _tree_pass(tree, emitters, receivers, near_field, buckets, span, options, out, first, fill,
+               far_sums_apart, near_disk_sums_apart, binned_sums_apart)
+
+
+@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+def _tree_pass(tree, emitters, receivers, near_field, buckets, span, options, out, first, fill,
+               far_fn, near_fn, binned_fn):
+    """The body of :func:`hierarchy_pass`; the list sums ``far_fn``, ``near_fn``,
+    ``binned_fn`` (:func:`~.listsums.far_sums`, ``near_disk_sums``, ``binned_sums`` or
+    their ``*_apart`` twins) are compile-time arguments."""
     positions, cell_weights, reach = near_field.positions, near_field.weights, near_field.reach
     corner_start, corners = near_field.corner_start, near_field.corners
     cache, cache_mode = near_field.cache, near_field.cache_mode
@@ -172,10 +211,10 @@ def hierarchy_pass(tree, emitters, receivers, near_field, buckets, span, options
                         acc[0, last] = dirs[0].sum()  # the bins and the wide terms
                         acc[1, last] = dirs[1].sum()
                 if binned_i:
-                    binned_sums(nb, n_near, fb, n_far, at, br2, acc, fst)
+                    binned_fn(nb, n_near, fb, n_far, at, br2, acc, fst)
                 elif not binning:
-                    f1, b1_ = far_sums(fb, n_far, at)
-                    f2, b2 = near_disk_sums(nb, n_near, at)
+                    f1, b1_ = far_fn(fb, n_far, at)
+                    f2, b2 = near_fn(nb, n_near, at)
                     acc[0, last] = np.float64(f1) + np.float64(f2)
                     acc[1, last] = np.float64(b1_) + np.float64(b2)
                 row = slot[i]  # >= 0: keeps or reads its bins
