@@ -312,9 +312,9 @@ def _check_outputs(output, source, overlay: bool | None = None) -> list[Path]:
     for path in outputs:
         mode = usd_output_mode(path, usd_input, overlay)
         check_output_dir(path)
+        check_not_input(path, [source])
         if mode == "overlay" and isinstance(source, (str, Path)) and Path(path).resolve() == Path(source).resolve():
             raise OutputError(f"{Path(path).name}: is the USD source itself; write the overlay to a new file")
-        check_not_input(path, [source])  # any other output over the input (a hard link too)
     return outputs
 
 
