@@ -601,13 +601,20 @@ class WarmUpReport:
         )
 
 
-def warm_up_scene():
-    """The warm-up's built-in scene: a unit cube resting on an 8 x 8 grid (+Y up), with
-    contacts, a crevice and open ground: (positions, faces) in float64 / int64."""
-    import trimesh
+def _cube() -> tuple[np.ndarray, np.ndarray]:
+    """A unit cube centred at the origin, outward triangles: (8, 3) and (12, 3)."""
+    corners = np.array([[x, y, z] for x in (-0.5, 0.5) for y in (-0.5, 0.5) for z in (-0.5, 0.5)])
+    quads = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)]
+    faces = np.array([t for a, b, c, d in quads for t in ((a, b, c), (a, c, d))], dtype=np.int64)
+    return corners, faces
 
-    cube = trimesh.creation.box(extents=(1.0, 1.0, 1.0))
-    cube_p = np.asarray(cube.vertices, dtype=np.float64) + [0.0, 0.5, 0.0]
+
+def warm_up_scene() -> tuple[np.ndarray, np.ndarray]:
+    """The warm-up's built-in scene: a unit cube resting on an 8 x 8 grid (+Y up), with
+    contacts, a crevice and open ground: (positions, faces) in float64 / int64; the
+    cube's 8 vertices and 12 faces come first."""
+    cube_p, cube_f = _cube()
+    cube_p = cube_p + [0.0, 0.5, 0.0]
     t = np.linspace(-2.0, 2.0, 9)
     x, z = np.meshgrid(t, t, indexing="ij")
     grid_p = np.c_[x.ravel(), np.zeros(x.size), z.ravel()]
@@ -615,7 +622,7 @@ def warm_up_scene():
     a = (i * 9 + j).ravel()
     grid_f = np.vstack([np.c_[a, a + 1, a + 10], np.c_[a, a + 10, a + 9]])  # facing +Y
     positions = np.vstack([cube_p, grid_p])
-    faces = np.vstack([np.asarray(cube.faces, dtype=np.int64), grid_f + len(cube_p)])
+    faces = np.vstack([cube_f, grid_f + len(cube_p)])
     return positions, faces
 
 
@@ -627,16 +634,19 @@ def warm_up(progress: Progress | None = None) -> WarmUpReport:
     removed afterwards. Seconds on a warm cache; a cold one takes what compiling takes."""
     import tempfile
 
-    import trimesh
+    from .io import write_bake
+    from .mesh import surface_from_arrays
+
+    def save(path, positions, faces):  # an input file: the commands read what they write
+        write_bake(path, surface_from_arrays(positions, faces), np.ones(len(positions)))
 
     steps = []
     with CompileWatch() as watch, tempfile.TemporaryDirectory(prefix="aobake-warm-up-") as tmp:
         t0 = time.perf_counter()
         d = Path(tmp)
         positions, faces = warm_up_scene()
-        trimesh.Trimesh(positions, faces, process=False).export(d / "scene.ply")
-        cube = trimesh.creation.box(extents=(1.0, 1.0, 1.0))
-        cube.export(d / "cube.ply")
+        save(d / "scene.ply", positions, faces)
+        save(d / "cube.ply", *_cube())
         for method in METHODS:
             bake_file(d / "scene.ply", [d / f"{method}.ply", d / f"{method}.usda"], method=method,
                       progress=progress)
@@ -644,7 +654,7 @@ def warm_up(progress: Progress | None = None) -> WarmUpReport:
         fit_field_file(d / "cube.ply", d / "cube.npz", progress=progress, resolution=4, radial_samples=8)
         steps.append("field")
         grid = d / "grid.ply"
-        trimesh.Trimesh(positions[8:], faces[12:] - 8, process=False).export(grid)
+        save(grid, positions[8:], faces[12:] - 8)
         bake_file(grid, d / "grid_field.ply", method=METHODS[0], fields=[(d / "cube.npz", (0.0, 0.5, 0.0))],
                   progress=progress)
         steps.append("bake --field")
