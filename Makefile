@@ -1,5 +1,6 @@
 # aobake: `make bake` sets up .venv and bakes data/ into out/; `make test` runs the suite.
-# Batch: `make -j2 batch IN=dir OUT=dir` bakes every mesh in IN into OUT, only what changed.
+# Batch: `make -j2 batch IN=dir OUT=dir` bakes every mesh in IN into OUT, only what changed
+# (`aobake batch` does the same on a Dask cluster: docs/batch.md).
 
 PYTHON ?= python3
 VENV   ?= .venv
@@ -16,7 +17,7 @@ STEMS    := $(basename $(notdir $(INPUTS)))
 OUT_PLY  := $(STEMS:%=$(OUT)/%.ply)
 OUT_USD  := $(STEMS:%=$(OUT)/%.usda)
 
-.PHONY: help venv bake batch test bench bench-deps bench-embree bench-bunnell bench-field report lint coverage clean
+.PHONY: help venv bake batch test bench bench-deps bench-embree bench-bunnell bench-field bench-batch report lint coverage clean
 
 help: ## Show this help
 	@awk 'BEGIN {FS = ":.*?## "} /^[a-zA-Z_-]+:.*?## / {printf "  %-14s %s\n", $$1, $$2}' $(MAKEFILE_LIST)
@@ -29,9 +30,13 @@ $(STAMP): pyproject.toml
 	$(PY) -m pip install --quiet -e '.[test,plot]'
 	@touch $@
 
+# Compiles the kernels once (aobake warm-up, quick when cached), then says what it baked
+# ("baked data/x.ply -> ..."), or that nothing needed baking.
 bake: $(STAMP) ## Compile the kernels once (aobake warm-up), then bake every mesh in data/ into out/ (PLY and USD)
-	$(AOBAKE) warm-up
-	@$(MAKE) --no-print-directory batch IN=data OUT=out
+	@$(AOBAKE) warm-up
+	@if $(MAKE) -q --no-print-directory batch IN=$(IN) OUT=$(OUT); then \
+	  echo "$(OUT)/ is up to date ($(words $(STEMS)) meshes)"; \
+	else $(MAKE) --no-print-directory batch IN=$(IN) OUT=$(OUT); fi
 
 batch: $(STAMP) $(OUT_PLY) $(OUT_USD) ## Bake IN=dir into OUT=dir (parallel with -j, only what changed)
 
@@ -39,12 +44,13 @@ batch: $(STAMP) $(OUT_PLY) $(OUT_USD) ## Bake IN=dir into OUT=dir (parallel with
 # input suffix, so data/x.obj and data/x.ply map to out/x.* (the first found wins).
 define BAKE_RULE
 $$(OUT)/%.ply $$(OUT)/%.usda &: $$(IN)/%.$(1) $$(STAMP) | $$(OUT)
-	$$(AOBAKE) bake $$< -o $$(OUT)/$$*.ply -o $$(OUT)/$$*.usda $$(BAKE_FLAGS)
+	@$$(AOBAKE) bake $$< -o $$(OUT)/$$*.ply -o $$(OUT)/$$*.usda $$(BAKE_FLAGS)
+	@echo "baked $$< -> $$(OUT)/$$*.ply, $$(OUT)/$$*.usda"
 endef
 $(foreach e,$(MESH_EXT),$(eval $(call BAKE_RULE,$(e))))
 
 $(OUT):
-	mkdir -p $@
+	@mkdir -p $@
 
 # PLY has no up axis; the bundled procedural scenes are +Z up (data/README.md).
 out/sphere_on_ground.ply out/sphere_on_ground.usda out/box_stack.ply out/box_stack.usda: BAKE_FLAGS += --up Z
@@ -52,7 +58,7 @@ out/sphere_on_ground.ply out/sphere_on_ground.usda out/box_stack.ply out/box_sta
 test: $(STAMP) ## Run the test suite
 	$(PY) -m pytest -q
 
-bench: bench-embree bench-bunnell bench-field ## All benchmarks (ratios measured in one run; ~30 min on 2 cores)
+bench: bench-embree bench-bunnell bench-field bench-batch ## All benchmarks (ratios measured in one run; ~40 min on 2 cores)
 
 bench-deps: $(STAMP)
 	$(PY) -m pip install --quiet -e '.[bench]' || echo "libigl not installable: peer rows skipped"
@@ -67,6 +73,9 @@ bench-bunnell: $(STAMP) ## Bunnell disks: error and time per pass against Embree
 
 bench-field: $(STAMP) ## AO fields: fit time, size, error, evaluation throughput
 	$(PY) bench/bench_field.py
+
+bench-batch: $(STAMP) ## aobake batch: 200 meshes against make -j2 batch, up-to-date rerun, --split 2 on 4M vertices
+	$(PY) bench/bench_batch.py
 
 report: $(STAMP) ## Sweep accuracy vs time on the bundled meshes into report/ (tables + pareto.png)
 # the two procedural scenes carry their own floor: no field rows (a field is for one rigid object)

@@ -17,11 +17,12 @@ def check_result(values, what: str, *, lower: float, upper: float, method: str) 
 
     bad = ~np.isfinite(values) | (values < lower) | (values > upper)
     if bad.any():
-        first = np.unravel_index(int(np.flatnonzero(bad)[0]), values.shape)[0]
+        flat = int(np.flatnonzero(bad)[0])
+        first = np.unravel_index(flat, values.shape)[0]
         raise NumericalError(
             f"{method}: {int(bad.sum())} values of {what} outside [{lower}, {upper}] "
             "or non-finite "
-            f"(first: vertex {int(first)}, value {values[first]!r})"
+            f"(first: vertex {int(first)}, value {float(values.flat[flat])!r})"
         )
 
 

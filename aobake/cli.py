@@ -14,12 +14,19 @@ import click
 
 from .errors import AobakeError
 from .methods import METHODS
+from .tools.views import VIEWS
 
 AO_CONVENTION = "The attribute `ao` holds 1 - A, the ambient factor (1 = fully open, 0 = fully occluded)."
 
 
 class AobakeGroup(click.Group):
-    """Turns :class:`AobakeError` into ``Error: <file>: <problem>`` and exit code 1."""
+    """Turns :class:`AobakeError` into ``Error: <file>: <problem>`` and exit code 1.
+
+    Warnings (numpy, trimesh's log, USD's stderr) are held while the command runs:
+    shown as ``Warning: ...`` lines when it succeeds, dropped when it fails (the
+    ``Error:`` line is then the only output). SIGTERM ends it like Ctrl-C (temporary
+    files removed), with exit code 143.
+    """
 
     def invoke(self, ctx):
         import threading
@@ -28,16 +35,51 @@ class AobakeGroup(click.Group):
 
         if threading.current_thread() is threading.main_thread():
             progress.install_interrupt_handler()  # Ctrl-C during numba compilation is not lost
+        with _held_warnings() as held:
+            try:
+                result = super().invoke(ctx)
+            except AobakeError as exc:
+                raise click.ClickException(str(exc)) from None
+            except progress.Terminated:
+                ctx.exit(128 + 15)
+            except Exception:
+                # after a Ctrl-C that Python dropped (progress.install_interrupt_handler),
+                # numba may fail in its own way (a half-compiled library): that is the abort
+                if progress.interrupted():
+                    raise click.Abort() from None
+                raise
+        for line in dict.fromkeys(held):  # once each, in order
+            click.echo(f"Warning: {line}", err=True)
+        return result
+
+
+def _held_warnings():
+    """Context manager: collect Python warnings and WARNING log records (trimesh) into
+    a list of one-line messages instead of printing them."""
+    import contextlib
+    import logging
+    import warnings
+
+    class Held(logging.Handler):
+        def emit(self, record):
+            held.append(" ".join(record.getMessage().split()))
+
+    held: list[str] = []
+
+    @contextlib.contextmanager
+    def hold():
+        log = Held(logging.WARNING)
+        root = logging.getLogger()
+        root.addHandler(log)
         try:
-            return super().invoke(ctx)
-        except AobakeError as exc:
-            raise click.ClickException(str(exc)) from None
-        except Exception:
-            # after a Ctrl-C that Python dropped (progress.install_interrupt_handler),
-            # numba may fail in its own way (a half-compiled library): that is the abort
-            if progress.interrupted():
-                raise click.Abort() from None
-            raise
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("default")
+                yield held
+        finally:
+            root.removeHandler(log)
+            held[:0] = [" ".join(str(w.message).split()) for w in caught]
+
+    return hold()
 
 
 class FieldSpec(click.ParamType):
@@ -128,16 +170,15 @@ def _click_type(spec):
 
 
 def _method_fields() -> dict:
-    """``{field: (Spec, default, methods that take it)}`` over every method's options class,
-    in the order the classes list them (seed and threads are common options)."""
+    """``{field: (Spec, {method: default})}`` over every method's options class, in the
+    order the classes list them (the methods that take a field are its dict's keys)."""
     from .methods import METHODS, options_class
     from .options import specs
 
     fields = {}
     for method in METHODS:
         for name, (spec, default) in specs(options_class(method)).items():
-            if name not in ("seed", "threads"):
-                fields.setdefault(name, (spec, default, []))[2].append(method)
+            fields.setdefault(name, (spec, {}))[1][method] = default
     return fields
 
 
@@ -150,7 +191,19 @@ def _shown(spec, default) -> str:
     return f"{default:g}" if spec.kind is float else str(default)
 
 
-def _option(name: str, spec, default, *, set_default: bool = True, text: str | None = None):
+def _clamp_threads(ctx, param, value):
+    """``--threads`` above the core count: the core count, with a note on stderr (more
+    threads than cores only costs memory, and the numba methods cannot start them)."""
+    import os
+
+    cores = os.cpu_count() or 1
+    if value is not None and value > cores:
+        click.echo(f"Note: --threads {value}: this machine has {cores} cores; using {cores}.", err=True)
+        return cores
+    return value
+
+
+def _option(name: str, spec, default, *, set_default: bool = True, text: str | None = None, show: bool = True):
     """The click option of an option field: flag, type, range, help and shown default from
     its :class:`aobake.options.Spec`. ``set_default=False`` leaves the click default None,
     so a command can tell what the user set (the options class fills in the rest)."""
@@ -161,7 +214,7 @@ def _option(name: str, spec, default, *, set_default: bool = True, text: str | N
         decl = f"{decl}/--no-{decl[2:]}"
     text = text or spec.help
     shown = set_default and default is not None
-    if not shown:  # click would show None: say what it stands for
+    if not shown and show:  # click would show None: say what it stands for
         text = text.rstrip(".") + f" [default: {_shown(spec, default)}]."
     return click.option(
         decl,
@@ -170,6 +223,7 @@ def _option(name: str, spec, default, *, set_default: bool = True, text: str | N
         default=default if set_default else None,
         show_default=shown,
         help=text,
+        callback=_clamp_threads if name == "threads" else None,
     )
 
 
@@ -190,24 +244,31 @@ def method_options(f):
     """One option per field of the methods' options classes: flag, type, default and help
     come from the classes (each spelled once there). Their value here is None unless the
     user sets one, so the command can tell what was set; the method's class fills in the
-    rest."""
+    rest. Help names the methods that take an option, and each one's default when they
+    differ."""
     from .methods import METHODS
 
-    for name, (spec, default, owners) in reversed(_method_fields().items()):
+    for name, (spec, defaults) in reversed(_method_fields().items()):
+        owners = list(defaults)
         text = spec.help if len(owners) == len(METHODS) else f"{'/'.join(owners)}: {spec.help}"
-        f = _option(name, spec, default, set_default=False, text=text)(f)
+        shown = {_shown(spec, d) for d in defaults.values()}
+        if len(shown) > 1:
+            text = text.rstrip(".") + " [default: " + ", ".join(f"{m} {_shown(spec, d)}" for m, d in defaults.items()) + "]."
+            f = _option(name, spec, None, set_default=False, text=text, show=False)(f)
+        else:
+            f = _option(name, spec, next(iter(defaults.values())), set_default=False, text=text)(f)
     return f
 
 
-def _method_options(method: str, given: dict, common: dict) -> dict:
-    """What the user set that ``method`` takes: a usage error for a method option it does
-    not take; the ``common`` ones (seed, threads) go only to the methods that take them."""
+def _method_options(method: str, given: dict) -> dict:
+    """What the user set for ``method``: one rule for every option, a usage error when
+    ``method`` does not take it (``--seed 3 --method bunnell``), whatever its value."""
     from .methods import options_class
     from .options import flag, specs
 
     fields = _method_fields()
     takes = specs(options_class(method))
-    out = {k: v for k, v in common.items() if k in takes and v is not None}
+    out = {}
     for name, value in given.items():
         if value is None:
             continue
@@ -215,6 +276,76 @@ def _method_options(method: str, given: dict, common: dict) -> dict:
             raise click.UsageError(f"{flag(name, fields[name][0])} does not apply to --method {method}")
         out[name] = value
     return out
+
+
+def bake_options(f):
+    """--method, its options (--seed and --threads among them), --color, --up,
+    --meters-per-unit, --field and --quiet: what `bake` takes and `batch` applies to every
+    input."""
+    for decorate in reversed(_BAKE_OPTIONS):
+        f = decorate(f)
+    return f
+
+
+_BAKE_OPTIONS = [
+    click.option(
+        "--method",
+        type=click.Choice(METHODS),
+        default=METHODS[0],
+        show_default=True,
+        help="embree: ray casting (the reference); bunnell: disk and polygon form factors, no rays.",
+    ),
+    method_options,
+    click.option(
+        "--color", is_flag=True, help="Also write ao as grey vertex colours (sRGB bytes in PLY, linear in USD and glTF)."
+    ),
+    click.option(
+        "--channel",
+        type=click.Choice(["R", "G", "B", "A"]),
+        default=None,
+        help="Write ao (linear) into this channel of the input's vertex colours, keeping the others (PLY, glTF; USD input: displayColor, A = displayOpacity).",
+    ),
+    click.option(
+        "--weld", is_flag=True, help="Bake with coincident vertices merged (STL soups, split seams); written per input vertex."
+    ),
+    click.option(
+        "--up",
+        type=click.Choice(["Y", "Z"]),
+        default=None,
+        help="Up axis: USD stage, PLY comment, glTF root turned to Y-up [default: the input's, else Y].",
+    ),
+    click.option(
+        "--meters-per-unit",
+        type=NumberRange(min=0, min_open=True),
+        default=None,
+        help="USD metersPerUnit, PLY comment, glTF root scale [default: the input's, else 1].",
+    ),
+    click.option(
+        "--overlay/--no-overlay",
+        default=None,
+        help="USD input to .usda/.usdc/.usd: write a layer over the source holding only ao "
+        "(sublayers it by relative path), or a full flattened copy with ao "
+        "[default: overlay]. .usdz is always a flattened package.",
+    ),
+    click.option(
+        "--time",
+        "time_code",
+        type=NumberRange(),
+        default=None,
+        help="USD input: read animated points and transforms at this time code "
+        "[default: the default time; geometry with only time samples: its earliest sample].",
+    ),
+    click.option(
+        "--field",
+        "fields",
+        multiple=True,
+        type=FieldSpec(),
+        help="An AO field (from `aobake field`) of a rigid occluder, optionally placed: "
+        "FIELD.npz@tx,ty,tz[,rx,ry,rz] (mesh units; degrees about x, then y, then z). "
+        "Repeatable; each multiplies ao by its 1 - A_k.",
+    ),
+    click.option("--quiet", "-q", is_flag=True, help="No progress bar or summary on stderr."),
+]
 
 
 @main.command()
@@ -225,60 +356,156 @@ def _method_options(method: str, given: dict, common: dict) -> dict:
     required=True,
     multiple=True,
     type=click.Path(path_type=Path),
-    help="Output .ply, .usda, .usdc or .usd (repeat for several formats from one bake).",
+    help="Output .ply, .usda, .usdc, .usd, .usdz, .gltf or .glb (repeat for several formats from one bake).",
 )
-@click.option(
-    "--method",
-    type=click.Choice(METHODS),
-    default=METHODS[0],
-    show_default=True,
-    help="embree: ray casting (the reference); bunnell: disk and polygon form factors, no rays.",
-)
-@method_options
-@click.option("--color", is_flag=True, help="Also write ao as grey vertex colours.")
-@click.option(
-    "--up", type=click.Choice(["Y", "Z"]), default=None, help="USD stage up axis [default: the input's, else Y]."
-)
-@click.option(
-    "--meters-per-unit",
-    type=click.FloatRange(min=0, min_open=True),
-    default=None,
-    help="USD metersPerUnit [default: the input's, else 1].",
-)
-@click.option(
-    "--field",
-    "fields",
-    multiple=True,
-    type=FieldSpec(),
-    help="An AO field (from `aobake field`) of a rigid occluder, optionally placed: "
-    "FIELD.npz@tx,ty,tz[,rx,ry,rz] (mesh units; degrees about x, then y, then z). "
-    "Repeatable; each multiplies ao by its 1 - A_k.",
-)
-@common_options
-def bake(mesh, output, method, color, up, meters_per_unit, fields, seed, threads, quiet, **given):
+@bake_options
+def bake(mesh, output, method, color, channel, weld, up, meters_per_unit, overlay, time_code, fields, quiet, **given):
     """Bake AO of MESH into OUTPUT as the per-vertex attribute `ao`.
 
     `ao` = 1 - A: 1 = fully open, 0 = fully occluded. MESH: PLY, OBJ, STL, OFF,
     GLB/glTF or USD; vertex count and order are kept. With --field, the mesh's own AO
-    is multiplied by each occluder's: 1 - A = (1 - A_self) prod (1 - A_k).
+    is multiplied by each occluder's: 1 - A = (1 - A_self) prod (1 - A_k). A USD
+    input baked to USD gives an overlay: the source with primvars:ao added, by layering.
     """
     from .pipeline import bake_file
     from .progress import make_progress
 
+    if color and channel:
+        raise click.UsageError("--color and --channel both write the vertex colours; give one")
     with compile_notice(quiet):
         report = bake_file(
             mesh,
             output,
             method=method,
             color=color,
+            channel=channel,
+            weld=weld,
             up_axis=up,
             meters_per_unit=meters_per_unit,
             progress=make_progress(quiet),
             fields=fields,
-            **_method_options(method, given, {"seed": seed, "threads": threads}),
+            time=time_code,
+            overlay=overlay,
+            **_method_options(method, given),
         )
     if not quiet:
         click.echo(report.summary(), err=True)
+
+
+@main.command()
+@click.argument("paths", nargs=-1, required=True)
+@click.option(
+    "-o", "--output", "outdir", required=True, type=click.Path(path_type=Path), help="Output directory (created)."
+)
+@click.option(
+    "--to",
+    "formats",
+    default="ply,usda",
+    show_default=True,
+    help="Formats written per input, comma-separated (ply, usda, usdc, usd): OUTDIR/<relative path>/<stem>.<ext>.",
+)
+@click.option(
+    "--workers", type=click.IntRange(min=1), default=None, help="Local worker processes [default: one per core]."
+)
+@click.option("--scheduler", default=None, help="Use a running Dask cluster: tcp://HOST:PORT of its scheduler.")
+@click.option(
+    "--split",
+    type=click.IntRange(min=1),
+    default=1,
+    show_default=True,
+    help="Bake each mesh as K vertex ranges on K tasks (embree only; bit-identical to an unsplit bake).",
+)
+@click.option(
+    "--retries",
+    type=click.IntRange(min=0),
+    default=2,
+    show_default=True,
+    help="Rerun an input whose worker died or failed unexpectedly this often (a bad mesh is not retried).",
+)
+@click.option("--force", is_flag=True, help="Bake every input, also those the manifest records as up to date.")
+@click.option(
+    "--emit-commands",
+    is_flag=True,
+    help="Print one `aobake bake` command per input that is not up to date instead of baking (for render farms, xargs -P).",
+)
+@bake_options
+def batch(
+    paths, outdir, formats, workers, scheduler, split, retries, force, emit_commands,
+    method, color, channel, weld, up, meters_per_unit, overlay, time_code, fields, quiet, **given,
+):  # fmt: skip
+    """Bake every mesh PATHS name into OUTDIR on a Dask cluster, skipping what is up to date.
+
+    PATHS: mesh files, directories (searched recursively), .txt/.lst files listing
+    paths, or glob patterns. Every `bake` option applies to every input. Runs on a local
+    cluster of worker processes by default, or on --scheduler. An input is skipped when
+    its content, the options and the aobake version match OUTDIR/manifest.json; each
+    input's status, error, vertices, rays, seconds, worker and output hashes are recorded
+    there (and in manifest.csv). Exit code 1 when any input failed.
+    """
+    from .batch import Settings, run_batch
+    from .batch import emit_commands as emit
+    from .progress import NullBatchBar, make_batch_bar
+
+    exts = tuple(e.strip().lower().lstrip(".") for e in formats.split(",") if e.strip())
+    if not exts:
+        raise click.BadParameter("give at least one format", param_hint="--to")
+    if len(set(exts)) != len(exts):
+        raise click.BadParameter(f"{formats!r} names a format twice", param_hint="--to")
+    from .methods import SPLITTABLE
+
+    if split > 1 and method not in SPLITTABLE:
+        raise click.UsageError(
+            f"--split applies to --method {'/'.join(SPLITTABLE)} only: {method} couples all vertices"
+        )
+    if color and channel:
+        raise click.UsageError("--color and --channel both write the vertex colours; give one")
+    if split > 1 and weld:
+        raise click.UsageError("--split bakes vertex ranges; a welded mesh is baked whole (drop --weld or --split)")
+    if emit_commands and (scheduler or workers or split > 1):
+        raise click.UsageError("--emit-commands bakes nothing: --scheduler, --workers and --split do not apply")
+    settings = Settings(
+        method=method,
+        options=_method_options(method, given),
+        color=color,
+        channel=channel,
+        weld=weld,
+        up_axis=up,
+        meters_per_unit=meters_per_unit,
+        fields=tuple(fields),
+        time=time_code,
+        overlay=overlay,
+    )
+    if emit_commands:
+        for line in emit(paths, outdir, formats=exts, settings=settings, force=force):
+            click.echo(line)
+        return
+
+    bar = make_batch_bar(quiet)
+
+    def on_failure(record):  # below the bar, which redraws on the next line
+        click.echo(("" if isinstance(bar, NullBatchBar) else "\n") + f"failed: {record['error']}", err=True)
+
+    try:
+        result = run_batch(
+            paths,
+            outdir,
+            formats=exts,
+            settings=settings,
+            workers=workers,
+            scheduler=scheduler,
+            split=split,
+            retries=retries,
+            force=force,
+            bar=bar,
+            on_failure=on_failure,
+        )
+    except KeyboardInterrupt:
+        click.echo(f"batch interrupted: {outdir / 'manifest.json'} records what finished; run it again to resume", err=True)
+        sys.exit(130)
+    if not quiet or result.failed:
+        click.echo(result.summary(), err=True)
+    if result.failed:
+        sys.exit(1)
 
 
 def _field_options(f):
@@ -311,7 +538,7 @@ def field_command(occluder, output, quiet, **options):
 @click.argument("reference", type=click.Path(path_type=Path))
 @click.argument("candidate", type=click.Path(path_type=Path))
 @click.option(
-    "--threshold", type=click.FloatRange(min=0), default=0.05, show_default=True, help="Report the share above this |error|."
+    "--threshold", type=NumberRange(min=0), default=0.05, show_default=True, help="Report the share above this |error|."
 )
 @click.option("--worst", type=click.IntRange(min=0), default=10, show_default=True, help="List this many worst vertices.")
 @click.option("--json", "json_path", type=click.Path(path_type=Path), default=None, help="Also write the numbers as JSON.")
@@ -323,9 +550,9 @@ def field_command(occluder, output, quiet, **options):
 )
 @click.option("--up", type=click.Choice(["Y", "Z"]), default=None, help="Up axis for --render [default: the file's, else Y].")
 def compare(reference, candidate, threshold, worst, json_path, plot_path, render_path, up):
-    """Error report of CANDIDATE against REFERENCE (bakes of one mesh: PLY, USD or .npy).
+    """Error report of CANDIDATE against REFERENCE (bakes of one mesh: PLY, USD, glTF or .npy).
 
-    Prints RMSE, MAE, bias, max and p50/p95/p99 of |error| (error = candidate -
+    Prints RMSE, MAE, mean error, max and p50/p95/p99 of |error| (error = candidate -
     reference, on `ao` = 1 - A), the share of vertices above --threshold and the worst
     vertices.
     """
@@ -371,7 +598,12 @@ def sweep(mesh, out_dir, reference_rays, repeats, no_plot, no_fields, up, seed, 
     """
     from .pipeline import sweep_file
     from .progress import make_progress
+    from .tools.plot import pyplot
     from .tools.sweep import to_markdown
+
+    plot = not no_plot and pyplot(required=False) is not None
+    if not no_plot and not plot:
+        click.echo("Note: matplotlib is not installed; writing sweep.csv and sweep.json, skipping pareto.png", err=True)
 
     def on_row(row):
         if not quiet:
@@ -387,7 +619,7 @@ def sweep(mesh, out_dir, reference_rays, repeats, no_plot, no_fields, up, seed, 
             repeats=repeats,
             fields=not no_fields,
             up=up,
-            plot=not no_plot,
+            plot=plot,
             progress=make_progress(quiet),
             on_row=on_row,
         )
@@ -397,13 +629,25 @@ def sweep(mesh, out_dir, reference_rays, repeats, no_plot, no_fields, up, seed, 
 @main.command()
 @click.argument("bake", type=click.Path(path_type=Path))
 @click.option("-o", "--output", required=True, type=click.Path(path_type=Path), help="Output .png.")
-@click.option("--view", type=click.Choice(["iso", "front", "side", "top"]), default="iso", show_default=True)
-@click.option("--azimuth", type=float, default=None, help="Degrees about the up axis (overrides --view).")
-@click.option("--elevation", type=click.FloatRange(-90, 90), default=None, help="Degrees above the horizon.")
+@click.option("--view", type=click.Choice(list(VIEWS)), default="iso", show_default=True, help="Camera direction.")
+@click.option(
+    "--azimuth",
+    type=NumberRange(),
+    default=None,
+    help="Degrees about the up axis, overriding --view's "
+    f"[default: the view's: {', '.join(f'{v} {a:g}' for v, (a, _) in VIEWS.items())}].",
+)
+@click.option(
+    "--elevation",
+    type=NumberRange(-90, 90),
+    default=None,
+    help="Degrees above the horizon, overriding --view's "
+    f"[default: the view's: {', '.join(f'{v} {e:g}' for v, (_, e) in VIEWS.items())}].",
+)
 @click.option("--size", type=click.IntRange(16, 8192), default=640, show_default=True, help="Image side in pixels.")
 @click.option("--up", type=click.Choice(["Y", "Z"]), default=None, help="Up axis [default: the file's, else Y].")
 def preview(bake, output, view, azimuth, elevation, size, up):
-    """Render BAKE (a PLY or USD file with `ao`) to a PNG: AO as grey, white = open."""
+    """Render BAKE (a PLY, USD or glTF file with `ao`) to a PNG: AO as grey, white = open."""
     from .pipeline import preview_file
 
     with compile_notice(False):

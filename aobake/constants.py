@@ -39,6 +39,14 @@ RAY_OFFSET_ULPS = 256.0
 CONTACT_PROBE_SLACK = 1.0 / 8.0
 CONTACT_DEPTH = 0.25
 
+# Mesh extent (largest bounding-box side) aobake accepts. AO does not depend on scale:
+# the ray tracer divides coordinates by a power of two (exact) before Embree's float32,
+# the disk method by the extent. Areas, cross products and squared distances are formed
+# in float64 in mesh units, and a norm of a cross product squares it again: fourth
+# powers of 1e+-60 stay well inside float64's 1e+-308.
+MIN_EXTENT = 1e-60
+MAX_EXTENT = 1e60
+
 # Unbounded rays: Embree's tfar for "no max distance" (float32-safe, beyond any scene).
 INFINITE_DISTANCE = 1e30
 

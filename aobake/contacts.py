@@ -73,9 +73,10 @@ def _own_side(surface: Surface, vertices, points, planes) -> np.ndarray:
 def contact_origins(
     surface: Surface, tracer: Tracer, offsets: FloatArray, edges: FloatArray | None = None
 ) -> tuple[np.ndarray, int]:
-    """Offset ray origins (float32, in ``tracer``'s recentred frame); see :func:`contact_points`."""
+    """Offset ray origins (float32, in ``tracer``'s frame: :meth:`Tracer.frame`); see
+    :func:`contact_points`."""
     points, contacts = contact_points(surface, tracer.local, tracer.center, offsets, edges)
-    return points.astype(np.float32), contacts
+    return tracer.frame(points), contacts
 
 
 def contact_points(
@@ -154,10 +155,11 @@ def contact_points(
             continue
         used = np.unique(group_faces)
         local_faces = np.searchsorted(used, group_faces)
-        other = Tracer(p[used], local_faces, recentred=True)
-        hit = other.intersect(
-            origins[idx].astype(np.float32), (-n[idx]).astype(np.float32), reach[idx]
-        )
+        # robust traversal: a probe through a vertex or an edge of the other surface (a
+        # float32 corner resting exactly on a floor vertex) must not slip between its
+        # triangles, or the contact is missed and the vertex reads open
+        other = Tracer(p[used], local_faces, recentred=True, robust=True)
+        hit = other.intersect(other.frame(origins[idx]), (-n[idx]).astype(np.float32), reach[idx])
         rows = np.flatnonzero(hit["primID"] >= 0)
         if rows.size == 0:
             continue
@@ -166,7 +168,7 @@ def contact_points(
         ok = m_len > 0
         rows, m = rows[ok], m[ok] / m_len[ok, None]
         v = idx[rows]
-        x = origins[v] - hit["tfar"][rows, None].astype(np.float64) * n[v]
+        x = origins[v] - hit["tfar"][rows, None] * n[v]
         side = _own_side(surface, v, x + center, m)
         keep = side != 0
         v, x, m = v[keep], x[keep], m[keep] * side[keep, None]  # m now points to the own side

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from ._types import FloatArray, IndexArray
-from .constants import NORMAL_EPS
+from .constants import MAX_EXTENT, MIN_EXTENT, NORMAL_EPS
 from .errors import InputError
 
 log = logging.getLogger(__name__)
@@ -77,7 +77,12 @@ class Surface:
     metadata : dict
         Facts read from the file: ``"format"`` (``"PLY"``, ``"USD"``...) and, where the
         format defines them, ``"up_axis"`` (``"Y"``/``"Z"``) and ``"meters_per_unit"``
-        (USD stage metrics; glTF is always Y up, meters). Empty for array input.
+        (USD stage metrics; glTF is always Y up, meters; PLY: as an aobake PLY records
+        them); what writers need to keep the input: ``"ply"`` (the PLY as read),
+        ``"gltf_path"`` (the glTF document) and, for USD, ``"path"`` (the resolved
+        source the overlay sublayers), ``"time"`` (the time code read, None for the
+        default time) and ``"animated"`` (meshes with time-varying points or
+        transforms). Empty for array input.
     """
 
     positions: FloatArray
@@ -246,7 +251,9 @@ def validate_arrays(positions: FloatArray, faces: IndexArray, source: str | Path
     Raises
     ------
     InputError
-        No vertices, no faces, NaN/inf coordinates, or a face index outside ``[0, n)``.
+        No vertices, no faces, NaN/inf coordinates, a face index outside ``[0, n)``,
+        or a nonzero extent outside what float64 products can hold
+        (:func:`check_extent`; the methods refuse a zero extent).
     """
     n = positions.shape[0]
     if n == 0:
@@ -259,6 +266,28 @@ def validate_arrays(positions: FloatArray, faces: IndexArray, source: str | Path
         first = int(np.flatnonzero(bad)[0])
         raise InputError(
             source, f"{int(bad.sum())} vertices have NaN or inf coordinates (first: vertex {first})"
+        )
+    check_extent(positions, source, zero=True)
+
+
+def check_extent(positions: FloatArray, source: str | Path, *, zero: bool = False) -> None:
+    """Raise :class:`InputError` unless the bounding box's largest side is in
+    ``[MIN_EXTENT, MAX_EXTENT]``: beyond these limits float64 products of coordinates
+    (areas, normals) underflow or overflow. ``zero``: an extent of zero (every vertex at
+    one point: a file may hold that, but it has no AO) passes."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        extent = float((positions.max(axis=0) - positions.min(axis=0)).max())
+    if extent == 0.0:
+        if zero:
+            return
+        raise InputError(source, "all vertices are at one point (the mesh has zero extent)")
+    if not np.isfinite(extent) or extent > MAX_EXTENT:
+        raise InputError(
+            source, f"coordinates span {extent:.3g}, more than the {MAX_EXTENT:g} aobake supports"
+        )
+    if extent < MIN_EXTENT:
+        raise InputError(
+            source, f"coordinates span {extent:.3g}, less than the {MIN_EXTENT:g} aobake supports"
         )
 
 
@@ -347,7 +376,8 @@ def assemble_surface(
     Parameters
     ----------
     raw : list of RawPart
-        The parts in file order; parts without faces are dropped (logged).
+        The parts in file order; parts without polygons (point clouds) are dropped
+        (logged); parts whose polygons give no triangle are kept (a warning).
     where : str or Path
         What errors name (the path); the surface's ``source`` is its name.
     metadata : dict, optional
@@ -363,11 +393,23 @@ def assemble_surface(
         No vertices, no faces, NaN/inf coordinates, or indices out of range.
     """
     source = Path(where).name if isinstance(where, Path) else str(where)
-    with_faces = [p for p in raw if len(p.faces)]
-    if not with_faces:
+    if not any(len(p.faces) for p in raw):
         # no part can be traced: report the whole file's vertices and faces
         n = sum(len(p.positions) for p in raw)
         validate_arrays(np.zeros((n, 3)), np.zeros((0, 3), dtype=np.int64), where)
+    # A mesh with polygons but no triangle (all of two corners, or all holes) keeps its
+    # vertices: they are output vertices (baked, occluding nothing). Point clouds and
+    # curves (no polygons at all) are not meshes and are left out.
+    with_faces = [p for p in raw if len(p.faces) or len(p.face_vertex_counts)]
+    flat = [p.name for p in with_faces if not len(p.faces)]
+    if flat:
+        log.warning(
+            "%s: %d meshes have no triangle (faces of fewer than 3 corners, or holes), "
+            "first %r: their vertices are baked but occlude nothing",
+            source,
+            len(flat),
+            flat[0],
+        )
     if len(with_faces) < len(raw):
         log.info("%s: %d meshes without faces ignored", source, len(raw) - len(with_faces))
     for p in with_faces:
@@ -480,3 +522,47 @@ def fan_triangulate(counts: IndexArray, indices: IndexArray) -> IndexArray:
     return np.stack([indices[first], indices[first + k], indices[first + k + 1]], axis=1).reshape(
         -1, 3
     )
+
+
+def weld_vertices(surface: Surface) -> tuple[Surface, IndexArray]:
+    """The surface with bit-identical positions merged within each part, for ``--weld``.
+
+    A triangle soup (STL) or a mesh split at normal or UV seams then bakes as one
+    connected surface: fewer vertices to compute, and the copies of a vertex get one
+    value. Parts are not welded to each other (touching objects stay separate shells).
+    The file's normals are not used, since split copies disagree on them: the welded
+    mesh gets angle-weighted normals.
+
+    Returns
+    -------
+    welded : Surface
+        First occurrences in input order; faces and polygons re-indexed.
+    inverse : (n,) int64
+        ``welded`` vertex of each input vertex: ``ao[inverse]`` is per input vertex.
+    """
+    raw, inverse, start = [], [], 0
+    for part in surface.parts:
+        positions = surface.positions[part.vertex_start : part.vertex_stop]
+        _, first, local = np.unique(positions, axis=0, return_index=True, return_inverse=True)
+        local = local.reshape(-1)
+        # renumber in order of first occurrence, so the welded vertices keep the input order
+        order = np.argsort(first, kind="stable")
+        rank = np.empty(len(order), dtype=np.int64)
+        rank[order] = np.arange(len(order))
+        local = rank[local]
+        faces = surface.faces[part.face_start : part.face_stop] - part.vertex_start
+        raw.append(
+            RawPart(
+                part.name,
+                positions[np.sort(first)],
+                local[faces],
+                None,
+                part.face_vertex_counts,
+                local[part.face_vertex_indices],
+                part.prim_path,
+            )
+        )
+        inverse.append(local + start)
+        start += len(order)
+    welded = assemble_surface(raw, surface.source, surface.metadata)
+    return welded, np.concatenate(inverse)

@@ -6,10 +6,11 @@ Parses no command-line options and never exits the process.
 from __future__ import annotations
 
 import contextlib
-import time
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from time import perf_counter
 from typing import Any
 
 import numpy as np
@@ -17,8 +18,9 @@ import numpy as np
 from . import __version__
 from ._types import AOArray
 from .constants import DEFAULT_METERS_PER_UNIT, DEFAULT_UP_AXIS
-from .errors import FormatError, NumericalError
-from .io import check_output_dir, output_kind
+from .errors import FormatError, InputError, NumericalError, OutputError
+from .io import check_output_dir, usd_output_mode
+from .io.common import check_not_input, output_name
 from .mesh import Surface
 from .methods import METHODS
 from .progress import CompileWatch, Progress, compile_note
@@ -46,6 +48,8 @@ class BakeReport:
         Time spent evaluating the fields (not in ``seconds``; compiling excluded).
     compile_seconds : float
         Time numba spent compiling kernels (a cold cache: the first run), in neither.
+    note : str
+        What the summary adds about the input, e.g. the time an animated USD was read at.
     """
 
     source: str
@@ -59,6 +63,7 @@ class BakeReport:
     field_skipped: tuple = ()
     field_seconds: float = 0.0
     compile_seconds: float = 0.0
+    note: str = ""
 
     def summary(self) -> str:
         """One line: vertices, rays, seconds, rays per second, compile time if any."""
@@ -76,25 +81,42 @@ class BakeReport:
                 f", x {len(self.field_skipped)} field(s) in {self.field_seconds:.2f} s"
                 f" ({skipped} receivers beyond r_far)"
             )
+        if self.note:
+            text += f", {self.note}"
         return text + compile_note(self.compile_seconds) + f" -> {self.output}"
 
 
-def as_surface(mesh: Any) -> Surface:
-    """A :class:`Surface` from a path, a ``trimesh.Trimesh``/``Scene``, or a Surface."""
+def as_surface(mesh: Any, time: float | None = None) -> Surface:
+    """A :class:`Surface` from a path, a ``trimesh.Trimesh``/``Scene``, or a Surface
+    (``time``: the USD time code to read a path at)."""
+    if isinstance(mesh, (str, Path)):
+        from .io import load_mesh
+
+        return load_mesh(mesh, time=time)
+    if time is not None:
+        raise ValueError("time applies to USD files only; got a loaded mesh")
     if isinstance(mesh, Surface):
         return mesh
-    from .io import load_mesh
     from .io.trimesh_formats import mesh_from_trimesh
 
-    if isinstance(mesh, (str, Path)):
-        return load_mesh(mesh)
     return mesh_from_trimesh(mesh)
 
 
-def _compute(surface: Surface, method: str, options: dict, progress: Progress | None):
+def _compute(surface: Surface, method: str, options: dict, progress: Progress | None, vertices=None):
+    """``(ao, n_rays, contacts)`` of ``method`` on ``vertices`` (None: all), a method's
+    numerical error named after the file."""
     from .methods import run
 
-    result = run(method, surface, options, progress)
+    try:
+        if vertices is None:  # the whole mesh: every method
+            result = run(method, surface, options, progress)
+        else:
+            result = run(method, surface, options, progress, vertices=vertices)
+    except NumericalError as exc:  # a method's own message, named after the file
+        name = Path(surface.source).name
+        if str(exc).startswith(f"{name}:"):
+            raise
+        raise NumericalError(f"{name}: {exc}") from None
     return result.ao, result.n_rays, result.contacts
 
 
@@ -141,9 +163,14 @@ def bake_file(
     meters_per_unit: float | None = None,
     progress: Progress | None = None,
     fields: Sequence = (),
+    channel: str | None = None,
+    weld: bool = False,
+    time: float | None = None,
+    overlay: bool | None = None,
     **options,
 ) -> BakeReport:
-    """Load ``source``, bake it once, write ``output`` (.ply, .usda, .usdc or .usd) atomically.
+    """Load ``source``, bake it once, write ``output`` (.ply, .usda, .usdc, .usd, .usdz,
+    .gltf or .glb) atomically.
 
     ``output`` may be several paths (one bake, several formats). Suffixes and
     directories are checked before loading or computing, so a typo fails at once;
@@ -158,35 +185,185 @@ def bake_file(
     before computing; the mesh's own AO from ``method`` is multiplied by every
     field's 1 - A_k (:func:`~aobake.methods.fields.fields_ao`).
 
+    ``channel`` (``"R"``, ``"G"``, ``"B"``, ``"A"``): write ``ao`` into that channel of
+    the input's vertex colours (PLY and glTF), other channels kept. ``weld``: bake the
+    mesh with coincident vertices of each part merged
+    (:func:`aobake.mesh.weld_vertices`), written back per input vertex.
+
+    USD input: ``time`` is the time code points and transforms are read at (default:
+    USD's default time, see :func:`aobake.io.load_mesh`). A USD output of a USD input is
+    an overlay layer over ``source`` unless ``overlay=False`` (a full flattened copy);
+    ``.usdz`` is a flattened package (:func:`aobake.io.usd_output_mode`).
+
     Returns
     -------
     BakeReport
     """
-    from .io import atomic_write, write_bake
+    from .io import check_outputs
 
+    outputs = _check_outputs(output, source, overlay)
+    placed = _load_fields(fields)
+    surface = as_surface(source, time)
+    check_outputs(surface, outputs, channel)
+    part = _bake_range(surface, method, options, progress, None, weld=weld)
+    return _write(
+        source, surface, outputs, [part], method, options, placed, color, up_axis, meters_per_unit,
+        channel, weld, overlay,
+    )  # fmt: skip
+
+
+@dataclass(frozen=True)
+class PartResult:
+    """AO of a vertex range of one mesh (:func:`bake_part`), to be stitched by :func:`write_parts`.
+
+    Attributes
+    ----------
+    vertices : (int, int)
+        The range lo..hi-1.
+    ao : (hi - lo,) float64
+    n_rays, contacts : int
+        Rays cast in the range; contact vertices of the whole mesh.
+    seconds : float
+        Compute time of the range (scene build included, compiling kernels not).
+    compile_seconds : float
+        Time spent compiling kernels (a cold numba cache), first run only.
+    """
+
+    vertices: tuple
+    ao: Any
+    n_rays: int
+    contacts: int
+    seconds: float
+    compile_seconds: float = 0.0
+
+
+def bake_part(
+    source: Any,
+    *,
+    method: str = "embree",
+    vertices: tuple[int, int] | None = None,
+    parts: tuple[int, int] | None = None,
+    progress: Progress | None = None,
+    **options,
+) -> PartResult:
+    """Bake one vertex range of ``source`` (a path or a surface) against the whole mesh.
+
+    Give the range as ``vertices=(lo, hi)`` or as ``parts=(k, K)``: the k-th of K equal
+    ranges (computed once the mesh is loaded). Only methods in
+    :data:`aobake.methods.SPLITTABLE` bake ranges; a range of the whole mesh
+    (``vertices=None, parts=None``) works for every method.
+    """
+    surface = as_surface(source)
+    if parts is not None:
+        k, count = parts
+        n = surface.n_vertices
+        vertices = (n * k // count, n * (k + 1) // count)
+    return _bake_range(surface, method, options, progress, vertices)
+
+
+def write_parts(
+    source: str | Path,
+    output: str | Path | Sequence[str | Path],
+    parts: Sequence[PartResult],
+    *,
+    method: str = "embree",
+    color: bool = False,
+    up_axis: str | None = None,
+    meters_per_unit: float | None = None,
+    fields: Sequence = (),
+    surface: Surface | None = None,
+    channel: str | None = None,
+    time: float | None = None,
+    overlay: bool | None = None,
+    **options,
+) -> BakeReport:
+    """Stitch the ranges of :func:`bake_part` in order and write them like :func:`bake_file`.
+
+    The ranges must cover the mesh's vertices exactly, in order; the files are then the
+    bytes :func:`bake_file` writes with the same arguments (``seconds`` is the parts'
+    sum, their compute time). ``surface``: ``source`` already loaded (not read again).
+    """
+    outputs = _check_outputs(output, source, overlay)
+    placed = _load_fields(fields)
+    surface = as_surface(source, time) if surface is None else surface
+    expected = 0
+    for part in parts:
+        if part.vertices[0] != expected:
+            raise ValueError(f"parts do not cover the vertices in order: {part.vertices} after {expected}")
+        expected = part.vertices[1]
+    if expected != surface.n_vertices:
+        raise ValueError(f"parts cover {expected} of {surface.n_vertices} vertices")
+    from .io import check_outputs
+
+    check_outputs(surface, outputs, channel)
+    return _write(
+        source, surface, outputs, parts, method, options, placed, color, up_axis, meters_per_unit,
+        channel, False, overlay,
+    )  # fmt: skip
+
+
+def _check_outputs(output, source, overlay: bool | None = None) -> list[Path]:
+    """Output paths, with suffixes, USD output modes and directories checked before any
+    work (none may be the input)."""
     outputs = [Path(output)] if isinstance(output, (str, Path)) else [Path(o) for o in output]
     if not outputs:
         raise ValueError("no output path given")
+    usd_input = _is_usd(source)
     for path in outputs:
-        output_kind(path)
+        mode = usd_output_mode(path, usd_input, overlay)
         check_output_dir(path)
-    placed = _load_fields(fields)
-    surface = as_surface(source)
-    # compiling kernels (a cold numba cache) is kept out of both times
+        check_not_input(path, [source])
+        if mode == "overlay" and isinstance(source, (str, Path)) and Path(path).resolve() == Path(source).resolve():
+            raise OutputError(f"{Path(path).name}: is the USD source itself; write the overlay to a new file")
+    return outputs
+
+
+
+def _bake_range(surface: Surface, method: str, options: dict, progress, vertices, *, weld: bool = False) -> PartResult:
+    """Run ``method`` on ``vertices`` (None: all); compiling kernels is kept out of the time.
+    ``weld``: bake the welded mesh (whole meshes only), results per input vertex."""
     with CompileWatch() as watch:
-        t0 = time.perf_counter()
-        ao, n_rays, contacts = _compute(surface, method, options, progress)
-        seconds = time.perf_counter() - t0 - watch.seconds
-        skipped: tuple = ()
+        t0 = perf_counter()
+        if weld:
+            from .mesh import weld_vertices
+
+            if vertices is not None:
+                raise ValueError("a welded mesh is baked whole: weld takes no vertex range")
+            welded, inverse = weld_vertices(surface)
+            ao, n_rays, contacts = _compute(welded, method, options, progress)
+            ao = np.asarray(ao)[inverse]
+        else:
+            ao, n_rays, contacts = _compute(surface, method, options, progress, vertices)
+        seconds = perf_counter() - t0 - watch.seconds
+    lo, hi = (0, surface.n_vertices) if vertices is None else vertices
+    return PartResult((lo, hi), ao, n_rays, contacts, seconds, watch.seconds)
+
+
+def _write(
+    source, surface, outputs, parts, method, options, placed, color, up_axis, meters_per_unit,
+    channel=None, weld=False, overlay=None,
+) -> BakeReport:  # fmt: skip
+    """Fields applied, checks, every output written atomically (all or none)."""
+    from .io import atomic_write, write_bake
+
+    ao = parts[0].ao if len(parts) == 1 else np.concatenate([p.ao for p in parts])
+    seconds = sum(p.seconds for p in parts)
+    skipped: tuple = ()
+    with CompileWatch() as watch:
+        t0 = perf_counter()
         if placed:
             ao, skipped = _apply_fields(surface, ao, placed, options.get("threads"))
-        field_seconds = time.perf_counter() - t0 - seconds - watch.seconds
+        field_seconds = perf_counter() - t0 - watch.seconds
     if ao.shape != (surface.n_vertices,):
         raise NumericalError(f"{surface.source}: {method} returned {ao.shape} values for {surface.n_vertices} vertices")
     custom = {"method": method, "version": __version__, "source": Path(str(source)).name}
     custom.update({k: ("none" if v is None else v) for k, v in options.items() if k not in ("threads", "chunk_rays")})
     if placed:
-        custom["fields"] = [name for _, _, name in placed]
+        custom["fields"] = ", ".join(name for _, _, name in placed)  # USD customData takes no lists
+    if weld:
+        custom["weld"] = True
+    if channel is not None:
+        custom["channel"] = channel
     # Stage metrics: what the caller says, else what the input said (USD, glTF), else
     # the documented defaults. An unauthored metersPerUnit would mean centimetres.
     meta = surface.metadata
@@ -199,23 +376,44 @@ def bake_file(
                 surface,
                 np.asarray(ao),
                 color=color,
+                channel=channel,
                 custom_data=custom,
                 up_axis=up_axis or meta.get("up_axis") or DEFAULT_UP_AXIS,
                 meters_per_unit=meters_per_unit or meta.get("meters_per_unit") or DEFAULT_METERS_PER_UNIT,
+                overlay=overlay,
             )
     return BakeReport(
         source=Path(str(source)).name,
         output=", ".join(str(p) for p in outputs),
         method=method,
         n_vertices=surface.n_vertices,
-        n_rays=n_rays,
+        n_rays=sum(p.n_rays for p in parts),
         seconds=seconds,
-        contacts=contacts,
+        contacts=parts[0].contacts,
         options=dict(options),
         field_skipped=skipped,
         field_seconds=field_seconds if placed else 0.0,
-        compile_seconds=watch.seconds,
+        compile_seconds=watch.seconds + sum(p.compile_seconds for p in parts),
+        note=_time_note(meta),
     )
+
+
+def _is_usd(source: Any) -> bool:
+    """Whether ``source`` is a USD file (by suffix) or a surface read from one."""
+    from .io.usd_overlay import usd_source
+
+    if isinstance(source, Surface):
+        return usd_source(source) is not None
+    return isinstance(source, (str, Path)) and Path(source).suffix.lower() in (".usd", ".usda", ".usdc", ".usdz")
+
+
+def _time_note(meta: dict) -> str:
+    """"2 animated meshes read at time 12" when a USD input has time samples, else ""."""
+    animated = meta.get("animated", 0)
+    if not animated:
+        return ""
+    when = "the default time" if meta.get("time") is None else f"time {meta['time']:g}"
+    return f"{animated} animated mesh{'es' if animated > 1 else ''} read at {when}"
 
 
 def compare_files(
@@ -229,7 +427,7 @@ def compare_files(
     render_path: str | Path | None = None,
     up: str | None = None,
 ):
-    """Compare two bakes of the same mesh (PLY, USD or ``.npy``); ``reference`` is "a".
+    """Compare two bakes of the same mesh (PLY, USD, glTF or ``.npy``); ``reference`` is "a".
 
     Worst-vertex positions come from whichever file is a mesh. ``json_path`` and
     ``plot_path`` (PNG, needs matplotlib) are written atomically; their suffixes and
@@ -245,9 +443,16 @@ def compare_files(
     for out in (json_path, plot_path, render_path):
         if out is not None:
             check_output_dir(out)
+            check_not_input(out, (reference, candidate))
+    if not (threshold >= 0 and math.isfinite(threshold)):
+        raise ValueError(f"threshold must be a finite number >= 0, got {threshold!r}")
     for out in (plot_path, render_path):
         if out is not None and Path(out).suffix.lower() != ".png":
             raise FormatError(f"{Path(out).name}: images are written as PNG; use a .png suffix")
+    if plot_path is not None:
+        from .tools.plot import pyplot
+
+        pyplot()  # before reading anything
     a = read_bake(reference)
     b = read_bake(candidate)
     positions = None
@@ -300,25 +505,27 @@ def sweep_file(
     -------
     rows : list of aobake.tools.sweep.SweepRow
     """
-    import hashlib
-
     from .io import atomic_write
     from .tools import sweep
 
     out_dir = Path(out_dir)
+    if out_dir.exists() and not out_dir.is_dir():
+        raise OutputError(f"{output_name(out_dir)}: exists and is not a directory; sweep writes a directory")
     # the directory may exist (the reference cache lives there); its parent must
     check_output_dir(out_dir / "sweep.csv" if out_dir.is_dir() else out_dir)
+    if plot:
+        from .tools.plot import pyplot
+
+        pyplot()  # matplotlib is checked before the work, not after it
     surface = as_surface(source)
-    out_dir.mkdir(exist_ok=True)
-    digest = hashlib.sha256()
-    digest.update(np.ascontiguousarray(surface.positions).tobytes())
-    digest.update(np.ascontiguousarray(surface.faces).tobytes())
-    digest.update(np.ascontiguousarray(surface.normals).tobytes())
-    key = digest.hexdigest()[:16]
+    try:
+        out_dir.mkdir(exist_ok=True)
+    except OSError as exc:
+        raise OutputError(f"{output_name(out_dir)}: cannot create the directory ({exc.strerror or exc})") from None
+    key = sweep_key(surface)
     cache = out_dir / f"reference_{key}_rays{reference_rays}_seed{seed}.npy"
-    if cache.exists():
-        reference = np.load(cache, allow_pickle=False)
-    else:
+    reference = _cached_reference(cache, surface.n_vertices)
+    if reference is None:
         from .methods.embree import embree_ao
 
         reference = embree_ao(surface, n_rays=reference_rays, seed=seed + 1, threads=threads, progress=progress).ao
@@ -353,6 +560,33 @@ def sweep_file(
     return rows
 
 
+def sweep_key(surface: Surface) -> str:
+    """The content key of a sweep's cached references (16 hex digits of the mesh's hash)."""
+    import hashlib
+
+    digest = hashlib.sha256()
+    digest.update(np.ascontiguousarray(surface.positions).tobytes())
+    digest.update(np.ascontiguousarray(surface.faces).tobytes())
+    digest.update(np.ascontiguousarray(surface.normals).tobytes())
+    return digest.hexdigest()[:16]
+
+
+def _cached_reference(cache: Path, n: int) -> np.ndarray | None:
+    """A sweep's cached reference ``ao``, or None when there is none yet; a cache that is
+    not ``n`` finite values in [0, 1] (or holds pickled data) is an :class:`InputError`."""
+    if not cache.exists():
+        return None
+    from .io import read_bake
+
+    values = read_bake(cache)  # a 1-D float .npy, pickles refused
+    if values.shape != (n,) or not np.isfinite(values).all() or values.min() < 0 or values.max() > 1:
+        raise InputError(
+            cache,
+            f"not a reference of {n} finite values in [0, 1]; delete it to recompute",
+        )
+    return values
+
+
 def preview_file(
     bake: str | Path,
     output: str | Path,
@@ -363,9 +597,9 @@ def preview_file(
     azimuth: float | None = None,
     elevation: float | None = None,
 ) -> None:
-    """Render a bake (a mesh file carrying ``ao``: PLY or USD) to a PNG, AO as grey."""
+    """Render a bake (a mesh file carrying ``ao``: PLY, USD or glTF) to a PNG, AO as grey."""
     from .io import load_mesh, read_bake
-    from .tools.preview import grey, render_values, write_png
+    from .tools.preview import preview_png, write_png
 
     if Path(output).suffix.lower() != ".png":
         raise FormatError(f"{Path(output).name}: previews are written as PNG; use a .png suffix")
@@ -373,10 +607,10 @@ def preview_file(
     surface = load_mesh(bake)
     ao = read_bake(bake, n_vertices=surface.n_vertices)
     up = up or surface.metadata.get("up_axis") or DEFAULT_UP_AXIS
-    image = render_values(
+    png = preview_png(
         surface.positions, surface.faces, ao, size=size, up=up, view=view, azimuth=azimuth, elevation=elevation
     )
-    write_png(output, grey(image))
+    write_png(output, png)
 
 
 def render_comparison(reference, candidate, output, *, size: int = 480, up: str | None = None, view: str = "iso"):
@@ -387,7 +621,7 @@ def render_comparison(reference, candidate, output, *, size: int = 480, up: str 
 
     mesh_path = next((p for p in (reference, candidate) if Path(p).suffix.lower() != ".npy"), None)
     if mesh_path is None:
-        raise FormatError(f"{Path(output).name}: rendering needs at least one bake that is a mesh (PLY or USD)")
+        raise FormatError(f"{Path(output).name}: rendering needs at least one bake that is a mesh (PLY, USD or glTF)")
     surface = load_mesh(mesh_path)
     a = read_bake(reference, n_vertices=surface.n_vertices)
     b = read_bake(candidate, n_vertices=surface.n_vertices)
@@ -553,9 +787,8 @@ def _field_sweep(surface, out_dir, key, up_axis, reference_rays, seed, threads, 
         np.vstack([surface.normals, g_normals]),
     )
     cache = out_dir / f"reference_ground{up_axis}_{key}_rays{reference_rays}_seed{seed}.npy"
-    if cache.exists():
-        reference = np.load(cache, allow_pickle=False)
-    else:
+    reference = _cached_reference(cache, len(ground))
+    if reference is None:
         reference = embree_ao(scene, n_rays=reference_rays, seed=seed + 1, threads=threads).ao[n:]
         with atomic_write(cache) as tmp:
             np.save(tmp, reference)
@@ -601,20 +834,11 @@ class WarmUpReport:
         )
 
 
-def _cube() -> tuple[np.ndarray, np.ndarray]:
-    """A unit cube centred at the origin, outward triangles: (8, 3) and (12, 3)."""
-    corners = np.array([[x, y, z] for x in (-0.5, 0.5) for y in (-0.5, 0.5) for z in (-0.5, 0.5)])
-    quads = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)]
-    faces = np.array([t for a, b, c, d in quads for t in ((a, b, c), (a, c, d))], dtype=np.int64)
-    return corners, faces
-
-
-def warm_up_scene() -> tuple[np.ndarray, np.ndarray]:
+def warm_up_scene():
     """The warm-up's built-in scene: a unit cube resting on an 8 x 8 grid (+Y up), with
-    contacts, a crevice and open ground: (positions, faces) in float64 / int64; the
-    cube's 8 vertices and 12 faces come first."""
-    cube_p, cube_f = _cube()
-    cube_p = cube_p + [0.0, 0.5, 0.0]
+    contacts, a crevice and open ground: (positions, faces) in float64 / int64."""
+    cube_v, cube_f = _unit_cube()
+    cube_p = cube_v + [0.0, 0.5, 0.0]
     t = np.linspace(-2.0, 2.0, 9)
     x, z = np.meshgrid(t, t, indexing="ij")
     grid_p = np.c_[x.ravel(), np.zeros(x.size), z.ravel()]
@@ -624,6 +848,25 @@ def warm_up_scene() -> tuple[np.ndarray, np.ndarray]:
     positions = np.vstack([cube_p, grid_p])
     faces = np.vstack([cube_f, grid_f + len(cube_p)])
     return positions, faces
+
+
+def _unit_cube():
+    """A unit cube centred at the origin: 8 corners (bit k of the index: axis k at +0.5)
+    and 12 outward-facing triangles."""
+    corners = np.array([[(k >> a & 1) - 0.5 for a in range(3)] for k in range(8)], dtype=np.float64)
+    quads = [(0, 2, 3, 1), (4, 5, 7, 6), (0, 1, 5, 4), (2, 6, 7, 3), (0, 4, 6, 2), (1, 3, 7, 5)]
+    faces = np.array([t for a, b, c, d in quads for t in ((a, b, c), (a, c, d))], dtype=np.int64)
+    return corners, faces
+
+
+def _write_plain_ply(path: Path, positions, faces) -> None:
+    """A minimal ASCII PLY of a triangle mesh (the warm-up's inputs)."""
+    lines = ["ply", "format ascii 1.0", f"element vertex {len(positions)}", "property double x",
+             "property double y", "property double z", f"element face {len(faces)}",
+             "property list uchar int vertex_indices", "end_header"]  # fmt: skip
+    lines += [" ".join(repr(float(c)) for c in p) for p in positions]
+    lines += ["3 " + " ".join(str(int(i)) for i in f) for f in faces]
+    path.write_text("\n".join(lines) + "\n")
 
 
 # Options that run kernels a default bake does not: the disk method's later passes (and
@@ -639,19 +882,13 @@ def warm_up(progress: Progress | None = None) -> WarmUpReport:
     removed afterwards. Seconds on a warm cache; a cold one takes what compiling takes."""
     import tempfile
 
-    from .io import write_bake
-    from .mesh import surface_from_arrays
-
-    def save(path, positions, faces):  # an input file: the commands read what they write
-        write_bake(path, surface_from_arrays(positions, faces), np.ones(len(positions)))
-
     steps = []
     with CompileWatch() as watch, tempfile.TemporaryDirectory(prefix="aobake-warm-up-") as tmp:
-        t0 = time.perf_counter()
+        t0 = perf_counter()
         d = Path(tmp)
         positions, faces = warm_up_scene()
-        save(d / "scene.ply", positions, faces)
-        save(d / "cube.ply", *_cube())
+        _write_plain_ply(d / "scene.ply", positions, faces)
+        _write_plain_ply(d / "cube.ply", *_unit_cube())
         for method in METHODS:
             bake_file(d / "scene.ply", [d / f"{method}.ply", d / f"{method}.usda"], method=method,
                       progress=progress)
@@ -662,11 +899,11 @@ def warm_up(progress: Progress | None = None) -> WarmUpReport:
         fit_field_file(d / "cube.ply", d / "cube.npz", progress=progress, resolution=4, radial_samples=8)
         steps.append("field")
         grid = d / "grid.ply"
-        save(grid, positions[8:], faces[12:] - 8)
+        _write_plain_ply(grid, positions[8:], faces[12:] - 8)
         bake_file(grid, d / "grid_field.ply", method=METHODS[0], fields=[(d / "cube.npz", (0.0, 0.5, 0.0))],
                   progress=progress)
         steps.append("bake --field")
         preview_file(d / f"{METHODS[0]}.ply", d / "preview.png", size=16)
         steps.append("preview")
-        seconds = time.perf_counter() - t0
+        seconds = perf_counter() - t0
     return WarmUpReport(steps=tuple(steps), seconds=seconds, compile_seconds=watch.seconds, kernels=watch.count)

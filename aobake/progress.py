@@ -14,18 +14,22 @@ import sys
 import time
 from typing import Protocol, TextIO
 
-_interrupted = False
+_interrupted = 0  # the signal number of the last interrupt, 0 for none
 _previous_hook = sys.unraisablehook  # what install_interrupt_handler's hook defers to
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised like Ctrl-C so every cleanup (temporary files) runs."""
 
 
 def _on_sigint(signum, frame):
     global _interrupted
-    _interrupted = True
-    raise KeyboardInterrupt
+    _interrupted = signum
+    raise Terminated if signum == signal.SIGTERM else KeyboardInterrupt
 
 
 def install_interrupt_handler() -> None:
-    """Ctrl-C raises KeyboardInterrupt as usual and is also remembered, so that every
+    """Ctrl-C raises KeyboardInterrupt as usual (SIGTERM: :class:`Terminated`) and is also remembered, so that every
     later ``advance`` raises it again. A KeyboardInterrupt raised inside a C callback is
     printed with a traceback and dropped by Python ("Exception ignored on calling ctypes
     callback"): numba's compiler calls back into Python, and an aobake interrupted while
@@ -33,8 +37,9 @@ def install_interrupt_handler() -> None:
     interrupts (``sys.unraisablehook``). Main thread only (the CLI); library code that
     never calls this is unaffected."""
     global _interrupted, _previous_hook
-    _interrupted = False
+    _interrupted = 0
     signal.signal(signal.SIGINT, _on_sigint)
+    signal.signal(signal.SIGTERM, _on_sigint)  # a kill is an interrupt: cleanup runs
     if sys.unraisablehook is not _drop_interrupts:
         _previous_hook = sys.unraisablehook
         sys.unraisablehook = _drop_interrupts
@@ -50,13 +55,13 @@ def _drop_interrupts(unraisable) -> None:
 
 def interrupted() -> bool:
     """Whether Ctrl-C came since :func:`install_interrupt_handler`."""
-    return _interrupted
+    return bool(_interrupted)
 
 
 def check_interrupt() -> None:
     """Raise KeyboardInterrupt if Ctrl-C came since :func:`install_interrupt_handler`."""
     if _interrupted:
-        raise KeyboardInterrupt
+        raise Terminated if _interrupted == signal.SIGTERM else KeyboardInterrupt
 
 
 class Progress(Protocol):
@@ -203,3 +208,72 @@ def make_progress(quiet: bool, stream: TextIO | None = None) -> Progress:
     if quiet or not getattr(stream, "isatty", lambda: False)():
         return NullProgress()
     return StderrProgress(stream)
+
+
+class NullBatchBar:
+    """Draws nothing (``aobake batch --quiet``, no terminal, Python callers)."""
+
+    def start(self, total: int) -> None:
+        pass
+
+    def update(self, done: int, failed: int, skipped: int) -> None:
+        pass
+
+    def finish(self) -> None:
+        pass
+
+
+class BatchBar:
+    """A one-line bar over the inputs of a batch: done / failed / skipped and ETA (from the
+    rate of inputs baked this run), redrawn at most ten times a second."""
+
+    def __init__(self, stream: TextIO | None = None, width: int = 30):
+        self.stream = sys.stderr if stream is None else stream
+        self.width = width
+        self.total = 1
+        self.counts = (0, 0, 0)
+        self.t0 = self._last = 0.0
+
+    def start(self, total: int) -> None:
+        self.total = max(int(total), 1)
+        self.t0 = time.perf_counter()
+        self._last = 0.0
+
+    def update(self, done: int, failed: int, skipped: int) -> None:
+        self.counts = (done, failed, skipped)
+        now = time.perf_counter()
+        if now - self._last >= 0.1 or sum(self.counts) == self.total:
+            self._last = now
+            self._draw()
+
+    def finish(self) -> None:
+        self._draw()
+        self.stream.write("\n")
+        self.stream.flush()
+
+    def text(self) -> str:
+        done, failed, skipped = self.counts
+        finished = done + failed + skipped
+        elapsed = time.perf_counter() - self.t0
+        baked = done + failed
+        left = self.total - finished
+        eta = elapsed * left / baked if baked else float("nan")
+        filled = int(self.width * finished / self.total)
+        bar = "#" * filled + "-" * (self.width - filled)
+        eta_text = f"{eta:6.1f}s" if eta == eta else "     ?"
+        return (
+            f"batch [{bar}] {finished}/{self.total}: {done} done, {failed} failed, {skipped} skipped,"
+            f" {elapsed:6.1f}s eta {eta_text}"
+        )
+
+    def _draw(self) -> None:
+        self.stream.write("\r" + self.text())
+        self.stream.flush()
+
+
+def make_batch_bar(quiet: bool, stream: TextIO | None = None):
+    """A :class:`BatchBar` on stderr when it is a terminal and not ``quiet``, else none."""
+    stream = sys.stderr if stream is None else stream
+    if quiet or not getattr(stream, "isatty", lambda: False)():
+        return NullBatchBar()
+    return BatchBar(stream)

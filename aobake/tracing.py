@@ -1,5 +1,5 @@
-"""The Embree boundary: triangles recentred in float64 then cast to float32, and the one
-chunked, thread-pooled loop every ray caster uses.
+"""The Embree boundary: triangles recentred and scaled by a power of two in float64, then
+cast to float32, and the one chunked, thread-pooled loop every ray caster uses.
 
 The only module that imports embreex. Knows nothing about the methods that call it;
 the word "scene" is kept for what a file holds.
@@ -7,7 +7,9 @@ the word "scene" is kept for what a file holds.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+import math
+from collections import deque
+from collections.abc import Callable, Iterable
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
@@ -17,11 +19,11 @@ from .constants import INFINITE_DISTANCE
 from .errors import InputError
 from .progress import Progress
 
-__all__ = ["INFINITE_DISTANCE", "Tracer", "split", "trace_chunks"]
+__all__ = ["INFINITE_DISTANCE", "Tracer", "power_of_two_scale", "split", "trace_chunks"]
 
 
 class Tracer:
-    """Triangles in Embree, recentred in float64 before the cast to float32.
+    """Triangles in Embree, recentred and normalised in float64 before the cast to float32.
 
     Parameters
     ----------
@@ -37,7 +39,13 @@ class Tracer:
     Embree is single precision. A mesh 1e4 units from the origin has float32 spacing
     of ~1e-3 there, enough to move vertices by more than any sensible ray offset;
     subtracting the bounding-box centre in float64 first keeps full precision relative
-    to the mesh's own size, so AO does not depend on where the mesh is.
+    to the mesh's own size, so AO does not depend on where the mesh is. Embree also
+    misses hits on meshes larger than ~1e13 or smaller than ~1e-13 units (its
+    constants and float32 products leave their range), so the recentred coordinates
+    are divided by ``scale``, the power of two that brings the largest into [0.5, 1):
+    exact, so AO does not depend on the mesh's size either. Points and distances go in
+    and out in mesh units (recentred); :meth:`frame` gives the float32 points Embree
+    takes.
     """
 
     def __init__(
@@ -57,28 +65,56 @@ class Tracer:
         self.local = positions - self.center
         #: Largest recentred coordinate: the magnitude that sets float32 rounding.
         self.magnitude = float(np.abs(self.local).max())
+        #: Power of two the recentred coordinates are divided by before the cast.
+        self.scale = power_of_two_scale(self.magnitude)
         if faces.size and faces.max() > np.iinfo(np.int32).max:
             raise InputError(None, f"{faces.max()} vertices exceed Embree's 32-bit indices")
         self._scene = rtcore_scene.EmbreeScene(robust=robust)
-        TriangleMesh(self._scene, self.local.astype(np.float32), faces.astype(np.int32))
+        TriangleMesh(self._scene, self.frame(self.local), faces.astype(np.int32))
         # Commit now, on this thread: EmbreeScene.run commits lazily and is not safe to
         # commit from two worker threads at once.
         probe = np.zeros((1, 3), dtype=np.float32)
         self._scene.run(probe, np.array([[0, 0, 1]], dtype=np.float32), query="OCCLUDED")
 
-    def occluded(self, origins, directions, tfar: float = INFINITE_DISTANCE) -> np.ndarray:
-        """(k,) int32: 0 where a ray (float32 arrays, local frame) hits within ``tfar``, -1 else."""
-        return self._scene.run(origins, directions, dists=float(tfar), query="OCCLUDED")
+    def frame(self, points: FloatArray) -> np.ndarray:
+        """Recentred points (mesh units, float64) as the float32 points Embree takes."""
+        return np.ascontiguousarray(np.asarray(points, dtype=np.float64) / self.scale, dtype=np.float32)
+
+    def _dists(self, tfar):
+        """Mesh-unit ray lengths in Embree's frame; None = unbounded (INFINITE_DISTANCE)."""
+        if tfar is None:
+            return INFINITE_DISTANCE
+        return np.minimum(np.asarray(tfar, dtype=np.float64) / self.scale, INFINITE_DISTANCE)
+
+    def occluded(self, origins, directions, tfar: float | None = None) -> np.ndarray:
+        """(k,) int32: 0 where a ray hits within ``tfar`` (mesh units; None: unbounded),
+        -1 else. ``origins``: float32 in Embree's frame (:meth:`frame`); ``directions``:
+        float32."""
+        return self._scene.run(origins, directions, dists=float(self._dists(tfar)), query="OCCLUDED")
 
     def intersect(self, origins, directions, tfar: np.ndarray) -> dict:
-        """Closest hits: dict with ``primID`` (k,) int32 (-1 = miss), ``tfar``, ``Ng`` (k, 3)."""
-        return self._scene.run(
+        """Closest hits: dict with ``primID`` (k,) int32 (-1 = miss), ``tfar`` (mesh
+        units, float64), ``Ng`` (k, 3); ``origins`` as for :meth:`occluded`."""
+        hit = self._scene.run(
             origins,
             directions,
-            dists=np.ascontiguousarray(tfar, dtype=np.float32),
+            dists=np.ascontiguousarray(self._dists(tfar), dtype=np.float32),
             query="INTERSECT",
             output=True,
         )
+        hit["tfar"] = hit["tfar"].astype(np.float64) * self.scale
+        return hit
+
+
+def power_of_two_scale(magnitude: float) -> float:
+    """2**e with ``magnitude / 2**e`` in [0.5, 1) (1.0 for zero or non-finite magnitudes).
+
+    Dividing by a power of two is exact in floating point, so the normalised scene is
+    the same scene bit for bit, only its exponents shifted.
+    """
+    if not (magnitude > 0.0 and math.isfinite(magnitude)):
+        return 1.0
+    return math.ldexp(1.0, math.frexp(magnitude)[1])
 
 
 def split(items: np.ndarray, per_chunk: int) -> list[np.ndarray]:
@@ -88,7 +124,7 @@ def split(items: np.ndarray, per_chunk: int) -> list[np.ndarray]:
 
 
 def trace_chunks(
-    chunks: Sequence,
+    chunks: Iterable,
     work: Callable[[object], int],
     *,
     threads: int,
@@ -98,20 +134,26 @@ def trace_chunks(
     """``work(chunk)`` for every chunk on ``threads`` worker threads (embreex releases the
     GIL while it traces); ``progress`` advances by what each returns, in chunk order.
 
-    Each chunk must write only its own output slots, so the result does not depend on
-    the thread count or the chunking. On Ctrl-C or any error the queued chunks are
-    dropped instead of traced. ``pool``: an executor to reuse across calls (it is then
-    left running).
+    Each chunk must write only its own output slots (or add integers under a lock), so
+    the result does not depend on the thread count or the chunking. ``chunks`` may be a
+    generator: at most ``4 * threads`` are queued at a time, so memory stays bounded
+    however many there are. On Ctrl-C or any error the queued chunks are dropped
+    instead of traced. ``pool``: an executor to reuse across calls (it is then left
+    running).
     """
+    threads = max(1, int(threads))
     own = pool is None
-    pool = ThreadPoolExecutor(max_workers=max(1, int(threads))) if own else pool
-    futures = []
-    try:  # queueing many chunks takes a while: a Ctrl-C then must drop them too
-        futures.extend(pool.submit(work, chunk) for chunk in chunks)
-        for future in futures:
-            progress.advance(future.result())
+    pool = ThreadPoolExecutor(max_workers=threads) if own else pool
+    window: deque = deque()
+    try:
+        for chunk in chunks:
+            window.append(pool.submit(work, chunk))
+            if len(window) >= 4 * threads:
+                progress.advance(window.popleft().result())
+        while window:
+            progress.advance(window.popleft().result())
     finally:
-        for future in futures:
+        for future in window:
             future.cancel()
         if own:
             pool.shutdown(wait=True, cancel_futures=True)

@@ -33,7 +33,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from aobake.constants import CHUNK_RAYS, INFINITE_DISTANCE, MEASURE_CODES
+from aobake.constants import CHUNK_RAYS, MEASURE_CODES
 from aobake.contacts import contact_origins, ray_offsets, shell_labels
 from aobake.kernels import rays as _k
 from aobake.methods.embree import EmbreeOptions, embree_ao, estimate
@@ -124,7 +124,7 @@ def trace_only_chunks(surface, prep: Prepared, n_rays: int, measure: str, chunk_
 def trace_runner(scene: Tracer, chunks, threads: int):
     def run():
         with ThreadPoolExecutor(max_workers=threads) as pool:
-            return list(pool.map(lambda c: scene.occluded(c[0], c[1], INFINITE_DISTANCE), chunks))
+            return list(pool.map(lambda c: scene.occluded(c[0], c[1]), chunks))
 
     return run
 
@@ -184,7 +184,7 @@ def profile_stages(surface, n_rays: int, chunk_rays: int) -> dict[str, float]:
         dirs = np.zeros((k, 3), dtype=np.float32)
         clock("ray generation", lambda: _k.generate_rays(
             origins, normals, keys, vi, 0, n_rays, MEASURE_CODES["cosine"], org, dirs))  # noqa: B023
-        ids = clock("occluded", lambda: scene.occluded(org, dirs, INFINITE_DISTANCE))  # noqa: B023
+        ids = clock("occluded", lambda: scene.occluded(org, dirs))  # noqa: B023
         clock("keys + count", lambda: _k.count_hits(ids, n_rays, vi, hits))  # noqa: B023
     return out
 
@@ -274,7 +274,7 @@ def reference_ao(surface, prep: Prepared, n_rays: int, vertices: np.ndarray, arg
         dirs = sample_directions(surface.normals, n_rays, seed=REF_SEED, measure="uniform",
                                  vertices=vi).reshape(-1, 3)
         org = np.repeat(prep.origins[vi], n_rays, axis=0)
-        ids = prep.scene.occluded(org, dirs, INFINITE_DISTANCE)
+        ids = prep.scene.occluded(org, dirs)
         return (ids != -1).reshape(vi.size, n_rays).sum(axis=1)
 
     with ThreadPoolExecutor(max_workers=args.threads) as pool:

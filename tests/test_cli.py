@@ -158,7 +158,7 @@ def test_unsupported_output_suffix_fails_before_loading(runner, tmp_path):
     assert result.exit_code == 1
     assert (
         result.stderr
-        == "Error: out.obj: unsupported output suffix '.obj'; use one of .ply, .usd, .usda, .usdc\n"
+        == "Error: out.obj: unsupported output suffix '.obj'; use one of .glb, .gltf, .ply, .usd, .usda, .usdc, .usdz\n"
     )
 
 

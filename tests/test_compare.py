@@ -21,7 +21,7 @@ def test_statistics_by_hand():
     err = b - a
     assert r.rmse == pytest.approx(np.sqrt((0.01 + 0.04) / 4))
     assert r.mae == pytest.approx(0.3 / 4)
-    assert r.bias == pytest.approx(-0.1 / 4)
+    assert r.mean_error == pytest.approx(-0.1 / 4)
     assert r.max_abs == pytest.approx(0.2)
     assert r.p50 == pytest.approx(np.percentile(np.abs(err), 50))
     assert r.above == pytest.approx(0.25)
@@ -113,7 +113,7 @@ def test_plot_without_matplotlib_is_a_clear_error(tmp_path, monkeypatch):
         return real_import(name, *args, **kwargs)
 
     monkeypatch.setattr(builtins, "__import__", no_mpl)
-    with pytest.raises(AobakeError, match=r"pip install 'aobake\[plot\]'"):
+    with pytest.raises(AobakeError, match=r"needs matplotlib, which is not installed"):
         plot_compare(np.zeros(3), np.zeros(3), tmp_path / "p.png")
     assert list(tmp_path.iterdir()) == []
 

@@ -107,7 +107,7 @@ def test_matches_independent_float64_tracer():
     scene = Tracer(s.positions, s.faces)
     origins, _ = contact_origins(s, scene, ray_offsets(s, scene.magnitude))
     dirs = sample_directions(s.normals, n, seed=5)
-    ref = reference_ao(s, origins.astype(np.float64) + scene.center, dirs)
+    ref = reference_ao(s, origins.astype(np.float64) * scene.scale + scene.center, dirs)
     assert np.abs(result.ao - ref).max() <= 2.0 / n
     assert np.mean(result.ao != ref) < 0.02
 

@@ -68,7 +68,7 @@ def test_bad_files_fail_with_one_line(ball_fields, tmp_path):
     _expect_error(tmp_path / "cut.npz", "not a readable field file")
     (tmp_path / "empty.npz").write_bytes(b"")
     _expect_error(tmp_path / "empty.npz", "not a readable field file")
-    _expect_error(tmp_path / "missing_file.npz", "no such file")
+    _expect_error(tmp_path / "missing_file.npz", "file not found")
 
     cases = {
         "nokey": ({"texels": None}, "missing texels"),

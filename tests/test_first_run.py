@@ -64,7 +64,7 @@ def test_compile_watch_silent_without_a_stream_and_when_nothing_compiles(capsys)
 def compiling_compute(monkeypatch):
     """``pipeline._compute`` replaced by one that compiles a fresh kernel, then sleeps
     0.05 s (the "work"), and returns ao = 0.5 everywhere with 1000 rays."""
-    def compute(surface, method, options, progress):
+    def compute(surface, method, options, progress, vertices=None):
         kernel = _fresh_kernel()
         kernel(np.ones(3))
         time.sleep(0.05)
@@ -108,7 +108,7 @@ def test_cli_says_it_compiles_unless_quiet(compiling_compute, cube_ply, tmp_path
 
 
 def test_nothing_compiled_nothing_said(cube_ply, tmp_path, monkeypatch):
-    monkeypatch.setattr(pipeline, "_compute", lambda s, m, o, p: (np.ones(s.n_vertices), 0, 0))
+    monkeypatch.setattr(pipeline, "_compute", lambda s, m, o, p, v=None: (np.ones(s.n_vertices), 0, 0))
     result = CliRunner().invoke(main, ["bake", str(cube_ply), "-o", str(tmp_path / "a.ply")])
     assert result.exit_code == 0
     assert COMPILING not in result.stderr and "compiling" not in result.stderr

@@ -60,7 +60,8 @@ def test_plyfile_round_trip(tmp_path):
     assert vertex["ao"].dtype == np.float32
     np.testing.assert_array_equal(vertex["ao"], ao.astype(np.float32))
     np.testing.assert_array_equal(vertex["quality"], ao.astype(np.float32))
-    expected_grey = np.array([0, 26, 128, 191, 85, 255], dtype=np.uint8)
+    # sRGB-encoded (IEC 61966-2-1), by hand: 1.055 * 0.5 ** (1 / 2.4) - 0.055 = 0.7354 -> 188
+    expected_grey = np.array([0, 89, 188, 225, 156, 255], dtype=np.uint8)
     for channel in ("red", "green", "blue"):
         assert vertex[channel].dtype == np.uint8
         np.testing.assert_array_equal(vertex[channel], expected_grey)
@@ -306,7 +307,9 @@ def test_write_bake_and_read_bake_ply(tmp_path):
     out = tmp_path / "bake.ply"
     write_bake(out, surface, ao, color=True, custom_data={"method": "embree", "seed": 3})
     ply = PlyData.read(str(out))
-    assert ply.comments == ["aobake method=embree", "aobake seed=3"]
+    assert ply.comments == [
+        "aobake method=embree", "aobake seed=3", "aobake up_axis=Y", "aobake meters_per_unit=1"
+    ]
     np.testing.assert_array_equal(read_bake(out, n_vertices=6), ao.astype(np.float32))
     with pytest.raises(InputError, match="has 6 ao values but the mesh has 7 vertices"):
         read_bake(out, n_vertices=7)

@@ -22,7 +22,7 @@ LAYERS = {
     "tracing": 3, "contacts": 3,
     "io": 3,
     "methods": 4,
-    "pipeline": 5, "tools": 5, "testing": 5,
+    "pipeline": 5, "tools": 5, "testing": 5, "batch": 5,
     "cli": 6, "__main__": 6, "__init__": 6,
 }  # fmt: skip
 
@@ -33,6 +33,8 @@ ROOMS = ("methods.embree", "methods.bunnell", "methods.fields")
 OWNERS = {
     "embreex": ("tracing",),
     "trimesh": ("io.trimesh_formats", "testing"),  # testing: procedural scenes (icospheres, boxes)
+    "dask": ("batch",),
+    "distributed": ("batch",),
 }
 
 
@@ -162,12 +164,12 @@ def _loaded_after(statement: str) -> set[str]:
     return set(out.split())
 
 
-HEAVY = {"numpy", "numba", "trimesh", "embreex", "pxr", "matplotlib"}
+HEAVY = {"numpy", "numba", "trimesh", "embreex", "pxr", "matplotlib", "dask", "distributed"}
 
 
 @pytest.mark.parametrize(
     "statement",
-    ["import aobake", "import aobake.cli", "import aobake.methods", "import aobake.options"],
+    ["import aobake", "import aobake.cli", "import aobake.methods", "import aobake.options", "import aobake.batch"],
 )
 def test_light_imports(statement):
     loaded = _loaded_after(statement)

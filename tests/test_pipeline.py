@@ -96,6 +96,6 @@ def test_failure_in_second_output_leaves_neither(tmp_path, monkeypatch):
         return real(path, *args, **kwargs)
 
     monkeypatch.setattr(aobake.io, "write_bake", flaky)
-    with pytest.raises(OSError):
+    with pytest.raises(aobake.errors.OutputError, match=r"^a\.usda: cannot write \(disk full\)$"):
         aobake.bake_file(src, [tmp_path / "a.ply", tmp_path / "a.usda"], n_rays=8)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["s.ply"]

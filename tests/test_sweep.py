@@ -39,7 +39,7 @@ def test_run_sweep_scores_against_reference():
         [("m", "s0", {"shift": 0.0}), ("m", "s1", {"shift": 0.1})],
     )
     assert rows[0].rmse == 0.0 and abs(rows[1].rmse - 0.1) < 1e-12
-    assert abs(rows[1].bias - 0.1) < 1e-12 and abs(rows[1].max_abs - 0.1) < 1e-12
+    assert abs(rows[1].mean_error - 0.1) < 1e-12 and abs(rows[1].max_abs - 0.1) < 1e-12
     assert rows[0].rays == 7
 
 

@@ -12,18 +12,19 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError
+from ..errors import FormatError, InputError
 from ..mesh import Surface, assemble_surface
-from . import obj, ply, trimesh_formats, usd
+from . import gltf, obj, ply, trimesh_formats, usd, usd_overlay
 from .common import (
     BAKE_SUFFIXES,
     atomic_write,
     check_ao,
+    check_input_file,
     check_output_dir,
     output_kind,
     short_reason,
 )
-from .ply import read_ao_ply, write_ply
+from .ply import read_ao_ply, write_kept_ply, write_ply
 from .usd import read_ao_usd, write_usd
 
 __all__ = [
@@ -32,12 +33,15 @@ __all__ = [
     "READ_SUFFIXES",
     "atomic_write",
     "check_ao",
+    "check_input_file",
+    "check_outputs",
     "check_output_dir",
     "load_mesh",
     "output_kind",
     "read_ao_ply",
     "read_ao_usd",
     "read_bake",
+    "usd_output_mode",
     "write_bake",
     "write_ply",
     "write_usd",
@@ -58,7 +62,7 @@ INPUT_FORMATS = {
 }
 
 
-def load_mesh(path: str | Path) -> Surface:
+def load_mesh(path: str | Path, *, time: float | None = None) -> Surface:
     """Read a mesh file into a :class:`Surface`, keeping its vertices exactly.
 
     Vertex count and order are the file's: duplicate, unreferenced and degenerate data
@@ -73,6 +77,11 @@ def load_mesh(path: str | Path) -> Surface:
     path : str or Path
         A ``.ply``, ``.obj``, ``.stl``, ``.off``, ``.glb``, ``.gltf``, ``.usd``,
         ``.usda``, ``.usdc`` or ``.usdz`` file.
+    time : float, optional
+        USD only: the time code to read points and transforms at (default: USD's
+        default time; a scene whose geometry has only time samples is read at its
+        earliest sample, see :func:`aobake.io.usd.read_parts`). ``metadata["time"]``
+        says which time was read.
 
     Returns
     -------
@@ -86,7 +95,7 @@ def load_mesh(path: str | Path) -> Surface:
     Raises
     ------
     InputError
-        Missing file, directory, unsupported suffix, unreadable or malformed data, empty
+        Missing file, directory, FIFO or device, unsupported suffix, unreadable or malformed data, empty
         mesh, no faces, NaN/inf coordinates, or indices out of range. The message is one
         line starting with the file name; foreign exceptions are chained.
 
@@ -100,25 +109,24 @@ def load_mesh(path: str | Path) -> Surface:
     """
     path = Path(path)
     fmt = INPUT_FORMATS.get(path.suffix.lower())
-    if not path.exists():
-        raise InputError(path, "file not found")
-    if path.is_dir():
-        raise InputError(path, "is a directory, not a mesh file")
+    check_input_file(path)
     if fmt is None:
         supported = ", ".join(sorted(INPUT_FORMATS))
         raise InputError(
             path, f"unsupported input suffix {path.suffix or '(none)'!r}; use one of {supported}"
         )
+    if time is not None and fmt != "USD":
+        raise InputError(path, f"a time was given but {fmt} files have no time samples (USD only)")
     metadata: dict = {"format": fmt}
     try:
         if fmt == "USD":
-            raw = usd.read_parts(path, metadata)
+            raw = usd.read_parts(path, metadata, time)
         else:
             data = path.read_bytes()
             if fmt == "OBJ":
                 raw = obj.read_parts(path, data)
             elif fmt == "PLY":
-                raw = ply.read_parts(path, data)
+                raw = ply.read_parts(path, data, metadata)
             else:
                 raw = trimesh_formats.read_parts(path, data, fmt, metadata)
     except InputError:
@@ -137,6 +145,8 @@ READ_SUFFIXES = {
     ".usda": "usd",
     ".usdc": "usd",
     ".usdz": "usd",
+    ".glb": "gltf",
+    ".gltf": "gltf",
     ".npy": "npy",
 }
 
@@ -150,46 +160,83 @@ def write_bake(
     up_axis: str = "Y",
     meters_per_unit: float = 1.0,
     custom_data: Mapping[str, str | float | int | bool] | None = None,
+    channel: str | None = None,
+    overlay: bool | None = None,
 ) -> None:
-    """Write a baked surface to ``path``, choosing PLY or USD from its suffix.
+    """Write a baked surface to ``path``, choosing PLY, USD or glTF from its suffix.
 
-    PLY gets the whole surface concatenated (positions, triangles, normals, ``ao``)
-    with ``custom_data`` as ``comment aobake <key>=<value>`` header lines; PLY has no
-    up axis or unit, so ``up_axis`` and ``meters_per_unit`` apply to USD only. USD gets
-    one mesh per part with its original polygons (see :func:`aobake.io.usd.write_usd`).
+    glTF (``.gltf``/``.glb``): a glTF input's own document with ``_AO`` per primitive,
+    else a new document of the parts (:func:`aobake.io.gltf.write_gltf`).
+
+    PLY: a PLY input is written back whole with ``ao`` added
+    (:func:`aobake.io.ply.write_kept_ply`: every element and property kept); other
+    inputs as the whole surface concatenated (positions, triangles, normals, ``ao``).
+    ``custom_data`` becomes ``comment aobake <key>=<value>`` header lines, and
+    ``up_axis`` and ``meters_per_unit`` are recorded the same way (PLY has no field for
+    them; :func:`load_mesh` reads them back). USD gets one mesh per part with its
+    original polygons (see :func:`aobake.io.usd.write_usd`), except for a surface read
+    from USD: then an overlay layer over the source (the default) or, with
+    ``overlay=False``, the source flattened with ``ao`` added (see
+    :mod:`aobake.io.usd_overlay`). ``.usdz`` is always a flattened, self-contained package.
 
     Parameters
     ----------
     path : str or Path
-        ``.ply``, ``.usda``, ``.usdc`` or ``.usd``; written atomically.
+        ``.ply``, ``.usda``, ``.usdc``, ``.usd``, ``.usdz``, ``.gltf`` or ``.glb``; written atomically.
     surface : aobake.mesh.Surface
         ``positions (n, 3) float64``, ``faces (m, 3) int64``, ``normals (n, 3) float64``
         and ``parts``.
     ao : (n,) float in [0, 1]
         Accessibility 1 - A (1 = fully open), one value per surface vertex.
     color : bool
-        Also write ``ao`` as grey vertex colours.
+        Also write ``ao`` as grey vertex colours (sRGB bytes in PLY, linear elsewhere:
+        :mod:`aobake.io.color`).
     up_axis : {"Y", "Z"}
-        USD stage ``upAxis``.
+        USD stage ``upAxis``, recorded in PLY comments.
     meters_per_unit : float
         USD stage ``metersPerUnit``.
     custom_data : mapping of str to str, float, int or bool, optional
         Provenance (method, parameters, seed, version).
+    channel : {"R", "G", "B", "A"}, optional
+        Write ``ao`` (linear) into this channel of the input's own vertex colours,
+        keeping the other channels; an input without colours is an InputError.
+    overlay : bool, optional
+        USD outputs of a USD input: True or None (default) writes an overlay, False a
+        full flattened copy. True for another input is an error (see
+        :func:`usd_output_mode`).
 
     Raises
     ------
     FormatError
-        Unsupported suffix (checked first).
+        Unsupported suffix, or ``overlay`` that does not apply (checked first).
     NumericalError
         ``ao`` is not ``(n,)`` for the surface's ``n`` vertices, non-finite, or
         outside [0, 1] (checked by the writer before anything is opened).
     InputError, OutputError, ValueError
         From the writer (bad topology, unwritable directory, bad options).
     """
-    if output_kind(path) == "ply":
-        comments = (
-            [] if custom_data is None else [f"aobake {k}={v}" for k, v in dict(custom_data).items()]
+    kind = output_kind(path)
+    if kind == "gltf":
+        gltf.write_gltf(
+            path,
+            surface,
+            ao,
+            color=color,
+            channel=channel,
+            up_axis=up_axis,
+            meters_per_unit=meters_per_unit,
+            custom_data=None if custom_data is None else dict(custom_data),
         )
+        return
+    if kind == "ply":
+        comments = [] if custom_data is None else [f"aobake {k}={v}" for k, v in dict(custom_data).items()]
+        comments += [f"aobake up_axis={up_axis}", f"aobake meters_per_unit={meters_per_unit:g}"]
+        kept = surface.metadata.get("ply")
+        if kept is not None and kept.data.elements["vertex"].count == surface.n_vertices:
+            write_kept_ply(path, kept, ao, color=color, channel=channel, comments=comments, source=surface.source)
+            return
+        if channel is not None:
+            raise InputError(surface.source, f"--channel {channel}: the mesh has no vertex colours to write into")
         write_ply(
             path,
             surface.positions,
@@ -200,7 +247,17 @@ def write_bake(
             comments=comments,
         )
     else:
-        write_usd(
+        mode = usd_output_mode(path, usd_overlay.usd_source(surface) is not None, overlay)
+        if channel is not None and mode == "usd":
+            raise FormatError(_usd_channel_refusal(path, surface))
+        writer = {
+            "usd": write_usd,
+            "overlay": usd_overlay.write_usd_overlay,
+            "copy": usd_overlay.write_usd_copy,
+            "usdz": usd_overlay.write_usdz,
+        }[mode]
+        extra = {} if channel is None else {"channel": channel}
+        writer(
             path,
             surface,
             ao,
@@ -208,11 +265,79 @@ def write_bake(
             up_axis=up_axis,
             meters_per_unit=meters_per_unit,
             custom_data=custom_data,
+            **extra,
         )
 
 
+def _usd_channel_refusal(path, surface) -> str:
+    return (
+        f"{Path(path).name}: --channel is not written to USD from a "
+        f"{surface.metadata.get('format', 'non-USD')} input; it writes into a USD input's own "
+        "displayColor (use PLY or glTF output)"
+    )
+
+
+def check_outputs(surface: Surface, outputs, channel: str | None = None) -> None:
+    """Refuse, before baking, what the writers would refuse after it: a glTF input whose
+    meshes cannot be found in its document again (glTF output) or whose image files are
+    missing (GLB output embeds them), and ``--channel`` where an output cannot take it
+    (USD output of a non-USD input, an input without vertex colours: PLY ``red green
+    blue``, glTF ``COLOR_0``, USD ``displayColor``)."""
+    kinds = {output_kind(path) for path in outputs}
+    if "gltf" in kinds and surface.metadata.get("gltf_path"):
+        doc = gltf.read_document(surface.metadata["gltf_path"])
+        gltf.match_parts(doc, surface, warn=False)
+        if any(Path(path).suffix.lower() == ".glb" for path in outputs):
+            gltf.check_images(doc)
+    if channel is None:
+        return
+    for path in outputs:
+        kind = output_kind(path)
+        if kind in ("usd", "usdz"):
+            if usd_overlay.usd_source(surface) is None:
+                raise FormatError(_usd_channel_refusal(path, surface))
+            usd_overlay.check_channel(surface, channel)
+            continue
+        kept = surface.metadata.get("ply")
+        if kind == "ply" and kept is not None:
+            if ply.vertex_colors(kept) is None:
+                raise InputError(surface.source, f"--channel {channel}: the mesh has no vertex colours (red green blue)")
+        elif kind == "gltf" and surface.metadata.get("gltf_path"):
+            gltf.check_channel(gltf.read_document(surface.metadata["gltf_path"]), channel)
+        elif kind == "gltf" and gltf.ply_has_colors(surface):
+            pass
+        else:
+            raise InputError(surface.source, f"--channel {channel}: the mesh has no vertex colours to write into")
+
+
+def usd_output_mode(path: str | Path, usd_input: bool, overlay: bool | None = None) -> str:
+    """How a USD output is written: ``"overlay"``, ``"copy"``, ``"usdz"`` or ``"usd"``
+    (aobake's own stage, for non-USD inputs); ``"ply"`` or ``"gltf"`` for those.
+
+    ``overlay`` None means the default (an overlay when input and output are both USD).
+    Raises :class:`FormatError` when ``overlay=True`` cannot be honoured: the input is
+    not USD, or the output is a ``.usdz`` package (self-contained by definition).
+    """
+    kind = output_kind(path)
+    if kind in ("ply", "gltf"):
+        return kind
+    if overlay and kind == "usdz":
+        raise FormatError(
+            f"{Path(path).name}: a .usdz package is self-contained and cannot be an overlay; "
+            "write the overlay as .usda, .usdc or .usd"
+        )
+    if overlay and not usd_input:
+        raise FormatError(f"{Path(path).name}: an overlay needs a USD input to layer over")
+    if kind == "usdz":
+        return kind
+    if not usd_input:
+        return "usd"
+    return "copy" if overlay is False else "overlay"
+
+
 def read_bake(path: str | Path, *, n_vertices: int | None = None) -> np.ndarray:
-    """Read per-vertex ``ao`` from a ``.ply``, ``.usd``/``.usda``/``.usdc``/``.usdz`` or ``.npy``.
+    """Read per-vertex ``ao`` from a ``.ply``, ``.usd``/``.usda``/``.usdc``/``.usdz``,
+    ``.glb``/``.gltf`` (``_AO``) or ``.npy``.
 
     Parameters
     ----------
@@ -225,12 +350,13 @@ def read_bake(path: str | Path, *, n_vertices: int | None = None) -> np.ndarray:
     Returns
     -------
     ao : (n,) float64
-        One value per vertex, in file order (USD: all meshes in traversal order).
+        One value per vertex, in file order (USD: all meshes in traversal order; glTF:
+        ``_AO`` of the primitives in scene order).
 
     Raises
     ------
     InputError
-        Missing or unreadable file, unsupported suffix, no ``ao`` data, an ``.npy``
+        Missing or unreadable file (or not a regular file), unsupported suffix, no ``ao`` data, an ``.npy``
         that is not a 1-D float array, or a count different from ``n_vertices``.
     """
     path = Path(path)
@@ -244,6 +370,8 @@ def read_bake(path: str | Path, *, n_vertices: int | None = None) -> np.ndarray:
         ao = read_ao_ply(path)
     elif kind == "usd":
         ao = read_ao_usd(path)
+    elif kind == "gltf":
+        ao = gltf.read_ao_gltf(path)
     else:
         ao = _read_npy(path)
     if n_vertices is not None and ao.shape[0] != n_vertices:
@@ -255,6 +383,7 @@ def read_bake(path: str | Path, *, n_vertices: int | None = None) -> np.ndarray:
 
 def _read_npy(path: Path) -> np.ndarray:
     """A 1-D float ``.npy`` array as float64 (no pickles)."""
+    check_input_file(path, ".npy file")
     try:
         array = np.load(path, allow_pickle=False)
     except FileNotFoundError:

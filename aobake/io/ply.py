@@ -10,25 +10,41 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
 from ..errors import InputError, OutputError
 from ..mesh import RawPart, fan_triangulate
-from .common import atomic_write, check_ao
-from .plyparse import PlyList, read_bytes, read_ply, read_ply_header
+from .color import CHANNELS, quantize, srgb_bytes
+from .common import atomic_write, check_ao, output_name
+from .plyparse import PlyData, PlyList, read_bytes, read_ply, read_ply_header, read_ply_types
 
 #: Largest index a PLY ``int`` (int32) face index can hold.
 INT32_MAX = int(np.iinfo(np.int32).max)
 
 
-def read_parts(path: Path, data: bytes) -> list[RawPart]:
+#: numpy type code -> PLY type name, for writing properties back with their types.
+PLY_NAMES = {"i1": "char", "u1": "uchar", "i2": "short", "u2": "ushort", "i4": "int",
+             "u4": "uint", "f4": "float", "f8": "double"}  # fmt: skip
+
+#: Vertex colour properties, in channel order (R G B A).
+COLOR_NAMES = ("red", "green", "blue", "alpha")
+
+
+def read_parts(path: Path, data: bytes, metadata: dict | None = None) -> list[RawPart]:
     """Vertices (``x y z``, optional ``nx ny nz``) and polygon faces of a PLY.
 
     Faces may mix polygon sizes; they keep their polygons (fan-triangulated for tracing).
-    Other elements and properties (colours, edges...) are read and ignored.
+    Other elements and properties (colours, edges...) are not used for the bake; they go
+    into ``metadata["ply"]`` (a :class:`KeptPly`) so that a PLY output keeps them, and
+    the comments ``aobake up_axis=Y|Z`` and ``aobake meters_per_unit=M`` an aobake PLY
+    records go into ``metadata["up_axis"]`` and ``metadata["meters_per_unit"]``.
     """
     ply = read_ply(path, data)
+    if metadata is not None:
+        metadata["ply"] = KeptPly(ply, read_ply_types(path, data))
+        metadata.update(_recorded_metrics(ply.header.comments))
     vertex = ply.elements.get("vertex")
     if vertex is None:
         return []
@@ -69,7 +85,9 @@ def write_ply(
     Vertex properties, in order: ``x y z`` (float), ``nx ny nz`` (float, when
     ``normals`` is given), ``ao`` (float), ``quality`` (float, the same value: MeshLab's
     per-vertex quality slot), and ``red green blue`` (uchar, grey ``round(255 * ao)``)
-    when ``color`` is true. Faces are ``list uchar int vertex_indices``. Vertices are
+    when ``color`` is true (sRGB-encoded, :func:`aobake.io.color.srgb_bytes`: Blender and
+    MeshLab decode PLY colours as sRGB and then show the grey USD's linear
+    ``displayColor`` shows). Faces are ``list uchar int vertex_indices``. Vertices are
     written exactly as given (same count and order; duplicate and unreferenced
     vertices are kept).
 
@@ -111,7 +129,7 @@ def write_ply(
     if positions.ndim != 2 or positions.shape[1] != 3:
         raise ValueError(f"positions must have shape (n, 3), got {positions.shape}")
     n = positions.shape[0]
-    ao32 = check_ao(ao, n_vertices=n, where=path.name)
+    ao32 = check_ao(ao, n_vertices=n, where=output_name(path))
     faces = np.asarray(faces)
     if faces.size == 0:
         faces = faces.reshape(0, 3)
@@ -121,14 +139,14 @@ def write_ply(
         raise ValueError(f"faces must be integers, got dtype {faces.dtype}")
     if n > INT32_MAX:
         raise OutputError(
-            f"{path.name}: {n} vertices exceed what PLY int32 face indices can address"
+            f"{output_name(path)}: {n} vertices exceed what PLY int32 face indices can address"
         )
     if faces.size:
         bad = (faces < 0) | (faces >= n)
         if bad.any():
             worst = int(faces[faces >= n].max()) if (faces >= n).any() else int(faces[bad].min())
             raise InputError(
-                path,
+                output_name(path),
                 f"{int(bad.any(axis=1).sum())} faces reference vertex {worst} "
                 f"but the mesh has {n} vertices",
             )
@@ -153,7 +171,7 @@ def write_ply(
         pos32 = positions.astype(np.float32)
     if not np.isfinite(pos32).all():
         raise OutputError(
-            f"{path.name}: coordinates are non-finite or overflow float32; cannot write PLY"
+            f"{output_name(path)}: coordinates are non-finite or overflow float32; cannot write PLY"
         )
     vertex["x"], vertex["y"], vertex["z"] = pos32.T
     if normals is not None:
@@ -162,8 +180,7 @@ def write_ply(
     vertex["ao"] = ao32
     vertex["quality"] = ao32
     if color:
-        grey = np.rint(ao32.astype(np.float64) * 255.0).astype(np.uint8)
-        vertex["red"] = vertex["green"] = vertex["blue"] = grey
+        vertex["red"] = vertex["green"] = vertex["blue"] = srgb_bytes(ao32)
 
     k = faces.shape[1]
     face = np.zeros(faces.shape[0], dtype=[("count", "u1"), ("vertex_indices", "<i4", (k,))])
@@ -180,15 +197,19 @@ def write_ply(
         "property list uchar int vertex_indices",
         "end_header",
     ]
-    head = ("\n".join(header) + "\n").encode("ascii", errors="backslashreplace")
+    _write(path, header, [vertex.data, face.data])
 
+
+def _write(path: Path, header: list[str], chunks) -> None:
+    """Header lines and body chunks, atomically."""
+    head = ("\n".join(header) + "\n").encode("ascii", errors="backslashreplace")
     try:
         with atomic_write(path) as tmp, open(tmp, "wb") as fh:
             fh.write(head)
-            fh.write(vertex.data)
-            fh.write(face.data)
+            for chunk in chunks:
+                fh.write(chunk)
     except OSError as exc:
-        raise OutputError(f"{path.name}: cannot write ({exc.strerror or exc})") from exc
+        raise OutputError(f"{output_name(path)}: cannot write ({exc.strerror or exc})") from exc
 
 
 def read_ao_ply(path: str | Path) -> np.ndarray:
@@ -231,3 +252,161 @@ def read_ao_ply(path: str | Path) -> np.ndarray:
     if isinstance(column, PlyList):
         raise InputError(path, f"PLY vertex property {key!r} is a list, not one value per vertex")
     return np.ascontiguousarray(column, dtype=np.float64)
+
+
+# -- a PLY input written back whole ------------------------------------------------------
+
+
+class KeptPly(NamedTuple):
+    """A PLY input as read, for writing it back with ``ao`` added.
+
+    Attributes
+    ----------
+    data : PlyData
+        Every element and property.
+    types : dict of str to tuple of (name, dtype, count dtype or None)
+        The declared types (:func:`aobake.io.plyparse.read_ply_types`).
+    """
+
+    data: PlyData
+    types: dict
+
+
+def _recorded_metrics(comments) -> dict:
+    """``up_axis`` and ``meters_per_unit`` from ``aobake key=value`` comments, when valid."""
+    out: dict = {}
+    for comment in comments:
+        key, _, value = comment.removeprefix("aobake ").partition("=")
+        if not comment.startswith("aobake "):
+            continue
+        if key == "up_axis" and value.strip() in ("Y", "Z"):
+            out["up_axis"] = value.strip()
+        elif key == "meters_per_unit":
+            try:
+                metres = float(value)
+            except ValueError:
+                continue
+            if np.isfinite(metres) and metres > 0:
+                out["meters_per_unit"] = metres
+    return out
+
+
+def vertex_colors(kept: KeptPly) -> tuple[np.ndarray, np.dtype] | None:
+    """The input's vertex colours ``(n, 3 or 4)`` as stored and their dtype, or None."""
+    columns = kept.data.elements["vertex"].properties
+    names = [c for c in COLOR_NAMES if isinstance(columns.get(c), np.ndarray)]
+    if names[:3] != list(COLOR_NAMES[:3]):
+        return None
+    dtype = dict((n, t) for n, t, _ in kept.types["vertex"])["red"]
+    return np.column_stack([columns[c] for c in names]), dtype
+
+
+def write_kept_ply(
+    path: str | Path,
+    kept: KeptPly,
+    ao,
+    *,
+    color: bool = False,
+    channel: str | None = None,
+    comments: Iterable[str] = (),
+    source: str = "input",
+) -> None:
+    """Write a PLY input back whole, with ``ao`` (and ``quality``) added to its vertices.
+
+    Every element and property keeps its name, order and type (a ``double`` stays a
+    ``double``); the body is binary little-endian. ``ao`` and ``quality`` are float32,
+    replacing properties of those names in place or appended after the input's.
+    ``color`` writes sRGB grey into ``red green blue`` (kept in their type, appended as
+    uchar when absent; ``alpha`` untouched). ``channel`` (``"R"``, ``"G"``, ``"B"`` or
+    ``"A"``) writes linear ``ao`` into one channel of the input's colours and keeps the
+    others bit-identical (an absent ``alpha`` is added in the colours' type). The input's comments are kept except its own
+    ``aobake ...`` lines, which ``comments`` replace.
+
+    Raises
+    ------
+    NumericalError
+        ``ao`` is non-finite, outside [0, 1] or not one value per vertex.
+    InputError
+        ``channel`` is given but the input has no ``red green blue`` colours.
+    OutputError
+        Unwritable directory.
+    """
+    path = Path(path)
+    vertex = kept.data.elements["vertex"]
+    ao32 = check_ao(ao, n_vertices=vertex.count, where=path.name)
+    types = {name: list(props) for name, props in kept.types.items()}
+    columns = {name: dict(element.properties) for name, element in kept.data.elements.items()}
+    props, vcols = types["vertex"], columns["vertex"]
+
+    def put(name: str, values: np.ndarray, dtype) -> None:
+        dtype = np.dtype(dtype)
+        if not any(p[0] == name for p in props):
+            props.append((name, dtype, None))
+        else:
+            dtype = next(t for n, t, _ in props if n == name)
+        vcols[name] = quantize(values, dtype) if dtype.kind in "iu" else values.astype(dtype)
+
+    for name in ("ao", "quality"):  # replaced in place as float32, or appended
+        props[:] = [(n, t, c) if n != name else (n, np.dtype(np.float32), None) for n, t, c in props]
+        put(name, ao32, np.float32)
+    if channel is not None:
+        found = vertex_colors(kept)
+        if found is None:
+            raise InputError(source, f"--channel {channel}: the mesh has no vertex colours (red green blue)")
+        put(COLOR_NAMES[CHANNELS[channel]], ao32.astype(np.float64), found[1])
+    elif color:
+        encoded = srgb_bytes(ao32) / 255.0  # the 8-bit sRGB value, at any type's scale
+        for name in COLOR_NAMES[:3]:
+            put(name, encoded, np.uint8)
+    header = ["ply", "format binary_little_endian 1.0"]
+    own = [c for c in kept.data.header.comments if not c.startswith("aobake ")]
+    header += [f"comment {c}" if c else "comment" for c in own + [str(c) for c in comments]]
+    chunks = []
+    for name, element in kept.data.elements.items():
+        header.append(f"element {name} {element.count}")
+        for prop, dtype, counter in types[name]:
+            if counter is None:
+                header.append(f"property {PLY_NAMES[dtype.str[1:]]} {prop}")
+            else:
+                header.append(
+                    f"property list {PLY_NAMES[counter.str[1:]]} {PLY_NAMES[dtype.str[1:]]} {prop}"
+                )
+        chunks.append(_element_bytes(element.count, types[name], columns[name]))
+    header.append("end_header")
+    _write(path, header, chunks)
+
+
+def _element_bytes(count: int, props, columns: dict) -> bytes:
+    """One element's rows as binary little-endian bytes, lists of any lengths."""
+    little = [(np.dtype(t).newbyteorder("<"), None if c is None else np.dtype(c).newbyteorder("<"))
+              for _, t, c in props]
+    row = np.zeros(count, dtype=np.int64)  # bytes per row
+    for (name, _, _), (dtype, counter) in zip(props, little, strict=True):
+        if counter is None:
+            row += dtype.itemsize
+        else:
+            row += counter.itemsize + columns[name].counts * dtype.itemsize
+    starts = np.cumsum(row) - row
+    out = np.zeros(int(row.sum()), dtype=np.uint8)
+    at = starts.copy()  # where the next property of each row goes
+
+    def scatter(where: np.ndarray, values: np.ndarray) -> None:
+        if not len(where):  # no rows, or every list empty
+            return
+        raw = np.ascontiguousarray(values).view(np.uint8).reshape(len(where), -1)
+        out[where[:, None] + np.arange(raw.shape[1])] = raw
+
+    for (name, _, _), (dtype, counter) in zip(props, little, strict=True):
+        column = columns[name]
+        if counter is None:
+            scatter(at, np.asarray(column).astype(dtype))
+            at = at + dtype.itemsize
+            continue
+        counts, values = column
+        scatter(at, counts.astype(counter))
+        at = at + counter.itemsize
+        owner = np.repeat(np.arange(count), counts)
+        k = np.arange(len(values)) - np.repeat(np.cumsum(counts) - counts, counts)
+        scatter(at[owner] + k * dtype.itemsize, np.asarray(values).astype(dtype))
+        at = at + counts * dtype.itemsize
+    return out.tobytes()

@@ -23,6 +23,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ..errors import InputError
+from .common import check_input_file
 
 #: PLY scalar type names (both spellings of the spec) and their numpy codes.
 PLY_TYPES = {
@@ -193,15 +194,21 @@ def read_ply_header(path: str | Path, data: bytes | None = None) -> PlyHeader:
     return _parse_header(path, read_bytes(path) if data is None else data)[0]
 
 
+def read_ply_types(
+    path: str | Path, data: bytes | None = None
+) -> dict[str, tuple[tuple[str, np.dtype, np.dtype | None], ...]]:
+    """Every element's properties as declared: ``(name, value dtype, list count dtype or
+    None)`` in header order (what a writer needs to write a file back with its types)."""
+    path = Path(path)
+    declared = _parse_header(path, read_bytes(path) if data is None else data)[1]
+    return {e.name: tuple((p.name, p.dtype, p.count_dtype) for p in e.properties) for e in declared}
+
+
 def read_bytes(path: str | Path) -> bytes:
     """A file's contents, or an :class:`InputError` saying why they cannot be read."""
-    path = Path(path)
+    path = check_input_file(path, "PLY file")
     try:
         return path.read_bytes()
-    except FileNotFoundError:
-        raise InputError(path, "file not found") from None
-    except IsADirectoryError:
-        raise InputError(path, "is a directory, not a PLY file") from None
     except OSError as exc:
         raise InputError(path, f"cannot read ({exc.strerror or exc})") from exc
 

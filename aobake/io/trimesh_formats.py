@@ -76,14 +76,13 @@ def read_parts(path: Path, data: bytes, fmt: str, metadata: dict) -> list[RawPar
     if fmt == "glTF":
         kwargs.update(merge_primitives=False, skip_materials=True)
         metadata.update(up_axis="Y", meters_per_unit=1.0)  # fixed by the glTF specification
+        metadata["gltf_path"] = str(path.resolve())  # glTF output writes this document back
     elif fmt == "STL" and not _is_binary_stl(data):
         decode_text(
             path, data, fmt, "neither binary (size does not match the triangle count) nor text"
         )
-    elif fmt == "OFF" and not re.match(
-        r"\s*(#[^\n]*\n\s*)*[A-Z]*OFF", decode_text(path, data, fmt)
-    ):
-        raise InputError(path, "cannot read as OFF: missing 'OFF' header")
+    elif fmt == "OFF":
+        check_off_counts(path, decode_text(path, data, fmt))
     if fmt == "glTF":
         # glTF may reference buffers next to it: load by path so the resolver finds them
         scene = trimesh.load_scene(str(path), **kwargs)
@@ -96,6 +95,60 @@ def read_parts(path: Path, data: bytes, fmt: str, metadata: dict) -> list[RawPar
         _, matrix, geometry, node = items[0]
         items = [(path.stem, matrix, geometry, node)]
     return _raw_from_scene(scene, items)
+
+
+def check_off_counts(path: Path, text: str) -> None:
+    """Raise :class:`InputError` unless an OFF file's rows match its header's counts.
+
+    trimesh reads the counts and takes rows as they come: a vertex count too large
+    turns face rows into vertices, a truncated file bakes as a smaller mesh. Here every
+    vertex row must hold 3 numbers or more, every face row ``k i_1 .. i_k`` (k >= 1, then
+    optional colour values), and no row may follow the last face.
+    """
+    rows = [line.split("#", 1)[0].split() for line in text.splitlines()]
+    rows = [r for r in rows if r]
+    if not rows or not re.fullmatch(r"[A-Z]*OFF", rows[0][0]):
+        raise InputError(path, "cannot read as OFF: missing 'OFF' header")
+    tokens = rows[0][1:]
+    body = rows[1:]
+    if not tokens:
+        if not body:
+            raise InputError(path, "cannot read as OFF: no counts after the 'OFF' header")
+        tokens, body = body[0], body[1:]
+    try:
+        n_vertices, n_faces = int(tokens[0]), int(tokens[1])
+    except (IndexError, ValueError):
+        raise InputError(path, f"cannot read as OFF: bad counts line {' '.join(tokens)!r}") from None
+    if n_vertices < 0 or n_faces < 0:
+        raise InputError(path, f"cannot read as OFF: negative counts {n_vertices} {n_faces}")
+    if len(body) < n_vertices + n_faces:
+        raise InputError(
+            path,
+            f"OFF header promises {n_vertices} vertices and {n_faces} faces but the file "
+            f"has {len(body)} rows (truncated, or counts wrong)",
+        )
+    for i, row in enumerate(body[:n_vertices]):
+        if len(row) < 3 or not all(_is_number(t) for t in row[:3]):
+            raise InputError(path, f"OFF vertex {i} is not 3 numbers: {' '.join(row)[:60]!r} (counts wrong?)")
+    for i, row in enumerate(body[n_vertices : n_vertices + n_faces]):
+        k = int(row[0]) if row[0].isdigit() else -1
+        if k < 1 or len(row) < k + 1 or not all(t.isdigit() for t in row[1 : k + 1]):
+            raise InputError(path, f"OFF face {i} is not a polygon row: {' '.join(row)[:60]!r} (counts wrong?)")
+    extra = len(body) - n_vertices - n_faces
+    if extra:
+        raise InputError(
+            path,
+            f"OFF header promises {n_vertices} vertices and {n_faces} faces but {extra} more "
+            "rows follow (counts wrong)",
+        )
+
+
+def _is_number(token: str) -> bool:
+    try:
+        float(token)
+    except ValueError:
+        return False
+    return True
 
 
 def _is_binary_stl(data: bytes) -> bool:

@@ -27,7 +27,7 @@ import numpy as np
 from .._types import FloatArray
 from ..errors import InputError, OutputError
 from ..mesh import RawPart, fan_triangulate, reverse_polygons, transformed_part
-from .common import atomic_write, check_ao
+from .common import atomic_write, check_ao, check_input_file, foreign_stderr, output_name
 
 #: Largest index a USD ``int[]`` (int32) can hold.
 INT32_MAX = int(np.iinfo(np.int32).max)
@@ -83,7 +83,8 @@ def write_usd(
         Stage ``metersPerUnit`` (> 0); 1.0 means the mesh units are meters.
     custom_data : mapping of str to str, float, int or bool, optional
         Recorded as ``customData["aobake"]`` on ``/Root`` and on every mesh (method,
-        parameters, seed, aobake version...).
+        parameters, seed, aobake version...), and as the layer's
+        ``customLayerData["aobake"]``.
 
     Raises
     ------
@@ -100,7 +101,7 @@ def write_usd(
         Bad ``up_axis``, ``meters_per_unit`` or ``custom_data``.
     """
     path = Path(path)
-    ao32 = check_ao(ao, n_vertices=surface.n_vertices, where=path.name)
+    ao32 = check_ao(ao, n_vertices=surface.n_vertices, where=output_name(path))
     up = str(up_axis).upper()
     if up not in UP_AXES:
         raise ValueError(f"up_axis must be 'Y' or 'Z', got {up_axis!r}")
@@ -113,25 +114,26 @@ def write_usd(
     meshes = _mesh_arrays(path, surface, ao32)
 
     try:
-        with atomic_write(path) as tmp:
+        with atomic_write(path) as tmp, foreign_stderr(output_name(path)):
             _author_stage(
                 tmp,
                 meshes,
-                out_name=path.name,
+                out_name=output_name(path),
                 color=color,
                 up_axis=up,
                 meters_per_unit=mpu,
                 custom_data=data,
             )
     except OSError as exc:
-        raise OutputError(f"{path.name}: cannot write ({exc.strerror or exc})") from exc
+        raise OutputError(f"{output_name(path)}: cannot write ({exc.strerror or exc})") from exc
 
 
 def read_ao_usd(path: str | Path) -> np.ndarray:
     """Read the ``primvars:ao`` of every mesh in a USD file, concatenated.
 
     Meshes are visited in stage traversal order (depth first, file order), which is
-    the writer's part order, so the result lines up with the baked vertices.
+    the writer's part order, so the result lines up with the baked vertices; invisible
+    meshes and guide or proxy purposes are skipped, as the mesh reader skips them.
 
     Parameters
     ----------
@@ -150,26 +152,20 @@ def read_ao_usd(path: str | Path) -> np.ndarray:
         a mesh lacks one while others have it, or the primvar is not one value per
         point.
     """
-    path = Path(path)
-    if not path.exists():
-        raise InputError(path, "file not found")
-    if path.is_dir():
-        raise InputError(path, "is a directory, not a USD file")
+    path = check_input_file(path, "USD file")
     from pxr import Sdf, Usd, UsdGeom
 
     stage = _open_fresh(path, Sdf, Usd)
     parts: list[np.ndarray] = []
     missing: list[str] = []
-    for prim in Usd.PrimRange.Stage(stage, Usd.TraverseInstanceProxies()):
-        if not prim.IsA(UsdGeom.Mesh):
-            continue
+    for prim in baked_meshes(stage, Usd.TimeCode.Default()):
         mesh = UsdGeom.Mesh(prim)
         primvar = UsdGeom.PrimvarsAPI(prim).GetPrimvar(AO_PRIMVAR)
         if not primvar or not primvar.HasValue():
             missing.append(str(prim.GetPath()))
             continue
         values = primvar.ComputeFlattened()
-        points = mesh.GetPointsAttr().Get()
+        points = _usd_value(mesh.GetPointsAttr(), Usd.TimeCode.Default(), None)
         n_points = 0 if points is None else len(points)
         if values is None:
             missing.append(str(prim.GetPath()))
@@ -197,11 +193,19 @@ def _open_fresh(path: Path, Sdf, Usd):
     the file, so it is read through an anonymous layer instead of the registry.
     """
     try:
-        if Sdf.Layer.Find(str(path.resolve())) is not None:
-            layer = Sdf.Layer.OpenAsAnonymous(str(path.resolve()))
-            stage = None if layer is None else Usd.Stage.Open(layer)
-        else:
-            stage = Usd.Stage.Open(str(path.resolve()))
+        with foreign_stderr(path.name):
+            if Sdf.Layer.Find(str(path.resolve())) is not None:
+                layer = Sdf.Layer.OpenAsAnonymous(str(path.resolve()))
+                if layer is not None:
+                    # an anonymous layer anchors nothing: sublayers relative to the file (an
+                    # aobake overlay's source) are made absolute so they still compose
+                    paths = [_anchored(sub, path) for sub in layer.subLayerPaths]
+                    del layer.subLayerPaths[:]
+                    for sub in paths:
+                        layer.subLayerPaths.append(sub)
+                stage = None if layer is None else Usd.Stage.Open(layer)
+            else:
+                stage = Usd.Stage.Open(str(path.resolve()))
     except Exception as exc:  # pxr raises Tf.ErrorException (not importable by name everywhere)
         # Tf errors read "Error in '<C++ function>' at line N in file F : '<what>'"; keep <what>.
         found = re.findall(r"'([^']*)'", str(exc))
@@ -212,8 +216,16 @@ def _open_fresh(path: Path, Sdf, Usd):
     return stage
 
 
+def _anchored(asset: str, layer_path: Path) -> str:
+    """A layer's relative asset path made absolute against the layer's directory."""
+    if asset.startswith(("./", "../")) or not (Path(asset).is_absolute() or ":" in asset):
+        return str((layer_path.resolve().parent / asset).resolve())
+    return asset
+
+
 def _clean_custom_data(custom_data) -> dict:
-    """Check ``custom_data`` maps str to str, float, int or bool; return plain Python values."""
+    """Check ``custom_data`` maps str to str, float, int, bool or a list of str; return
+    values USD stores (plain Python, lists as ``Vt.StringArray``)."""
     if custom_data is None:
         return {}
     out = {}
@@ -230,9 +242,14 @@ def _clean_custom_data(custom_data) -> dict:
             out[key] = value
         elif isinstance(value, float):
             out[key] = value
+        elif isinstance(value, list | tuple) and all(isinstance(v, str) for v in value):
+            from pxr import Vt
+
+            out[key] = Vt.StringArray(list(value))  # e.g. the --field files
         else:
             raise ValueError(
-                f"custom_data[{key!r}] must be str, float, int or bool, got {type(value).__name__}"
+                f"custom_data[{key!r}] must be str, float, int, bool or a list of str, "
+                f"got {type(value).__name__}"
             )
     return out
 
@@ -252,15 +269,16 @@ def _mesh_arrays(path: Path, surface, ao32: np.ndarray) -> list[dict]:
             )
         if k > INT32_MAX:
             raise OutputError(
-                f"{path.name}: part {part.name!r} has {k} vertices, "
+                f"{output_name(path)}: part {part.name!r} has {k} vertices, "
                 "more than USD int32 indices address"
             )
         counts = np.asarray(part.face_vertex_counts, dtype=np.int64).reshape(-1)
         indices = np.asarray(part.face_vertex_indices, dtype=np.int64).reshape(-1)
-        if counts.size and counts.min() < 3:
+        # faces of fewer than 3 corners are written as the input had them (USD keeps
+        # them; renderers skip them); only negative counts are nonsense
+        if counts.size and counts.min() < 0:
             raise InputError(
-                surface.source,
-                f"part {part.name!r}: {int((counts < 3).sum())} faces have fewer than 3 corners",
+                surface.source, f"part {part.name!r}: {int((counts < 0).sum())} negative face counts"
             )
         if int(counts.sum()) != indices.size:
             raise InputError(
@@ -279,7 +297,7 @@ def _mesh_arrays(path: Path, surface, ao32: np.ndarray) -> list[dict]:
             points = np.ascontiguousarray(positions[vs:ve], dtype=np.float32)
         if not np.isfinite(points).all():
             raise OutputError(
-                f"{path.name}: part {part.name!r} has coordinates that overflow float32"
+                f"{output_name(path)}: part {part.name!r} has coordinates that overflow float32"
             )
         meshes.append(
             {
@@ -336,6 +354,8 @@ def _author_stage(
         stage.SetDefaultPrim(root)
         if custom_data:
             root.SetCustomDataByKey(CUSTOM_DATA_KEY, custom_data)
+            # also on the layer, where overlays and full copies record their source
+            stage.GetRootLayer().customLayerData = {CUSTOM_DATA_KEY: custom_data}
         for arrays in meshes:
             _author_mesh(
                 stage, f"{ROOT_PATH}/{arrays['name']}", arrays, color, custom_data, Sdf, UsdGeom, Vt
@@ -385,9 +405,17 @@ def _author_mesh(
 # -- reading meshes ---------------------------------------------------------------------
 
 
-def read_parts(path: Path, metadata: dict) -> list[RawPart]:
+def read_parts(path: Path, metadata: dict, time: float | None = None) -> list[RawPart]:
     """Every visible ``UsdGeom.Mesh`` in world space (instance proxies included; guide and
-    proxy purposes skipped)."""
+    proxy purposes skipped), read at ``time``.
+
+    ``time=None`` is USD's default time. Where a baked mesh's points, topology or
+    transforms are time-sampled without a default value (nothing to read at the default
+    time), the whole scene is read at the earliest such sample instead, so every mesh is
+    taken at one instant. ``metadata`` gets ``time`` (the time code read, None for the
+    default), ``animated`` (how many meshes have time-varying points or transforms) and
+    ``path`` (the resolved source file, for the writers that layer over it).
+    """
     try:
         from pxr import Usd, UsdGeom
     except ImportError as exc:
@@ -395,16 +423,43 @@ def read_parts(path: Path, metadata: dict) -> list[RawPart]:
             path, "reading USD needs the usd-core package (pip install usd-core)"
         ) from exc
 
-    stage = Usd.Stage.Open(str(path))
+    with foreign_stderr(path.name):
+        stage = Usd.Stage.Open(str(path))
     if stage is None:
         raise InputError(path, "cannot read as USD: the stage did not open")
     metadata.update(
         up_axis=str(UsdGeom.GetStageUpAxis(stage)),
         meters_per_unit=float(UsdGeom.GetStageMetersPerUnit(stage)),
+        path=str(Path(path).resolve()),
     )
-    time = Usd.TimeCode.Default()
+    if time is not None and not math.isfinite(time):
+        raise InputError(path, f"time {time} is not a finite time code")
+    default = Usd.TimeCode.Default()
+    meshes = list(baked_meshes(stage, default if time is None else Usd.TimeCode(time)))
+    moving: dict = {}  # prim path -> its transform (or an ancestor's) is time-sampled
+    animated = [m for m in meshes if _time_varying(m, moving)]
+    if time is None:
+        first = _first_sample_without_default(animated)
+        code = default if first is None else Usd.TimeCode(first)
+        if first is not None:  # visibility may differ at that instant
+            meshes = list(baked_meshes(stage, code))
+        metadata["time"] = first
+    else:
+        code = Usd.TimeCode(time)
+        metadata["time"] = float(time)
+    metadata["animated"] = len(animated)
+    raw = [_usd_mesh_part(path, UsdGeom.Mesh(prim), code) for prim in meshes]
+    if not raw:
+        raise InputError(path, "no visible UsdGeom.Mesh in the stage")
+    return raw
+
+
+def baked_meshes(stage, time):
+    """The meshes aobake bakes, in traversal order: visible ``UsdGeom.Mesh`` prims
+    (instance proxies included) whose purpose is not guide or proxy."""
+    from pxr import Usd, UsdGeom
+
     skipped_purposes = {UsdGeom.Tokens.guide, UsdGeom.Tokens.proxy}
-    raw = []
     for prim in stage.Traverse(Usd.TraverseInstanceProxies()):
         if not prim.IsA(UsdGeom.Mesh):
             continue
@@ -413,10 +468,70 @@ def read_parts(path: Path, metadata: dict) -> list[RawPart]:
             continue
         if imageable.ComputePurpose() in skipped_purposes:
             continue
-        raw.append(_usd_mesh_part(path, UsdGeom.Mesh(prim), time))
-    if not raw:
-        raise InputError(path, "no visible UsdGeom.Mesh in the stage")
-    return raw
+        yield prim
+
+
+def _geometry_attributes(prim):
+    """The attributes that place a mesh's points: its points and topology, and the
+    xformOps of the prim and its ancestors up to a resetXformStack."""
+    from pxr import UsdGeom
+
+    mesh = UsdGeom.Mesh(prim)
+    attributes = [
+        mesh.GetPointsAttr(),
+        mesh.GetFaceVertexCountsAttr(),
+        mesh.GetFaceVertexIndicesAttr(),
+    ]
+    while prim and not prim.IsPseudoRoot():
+        xformable = UsdGeom.Xformable(prim)
+        if xformable:
+            attributes += [op.GetAttr() for op in xformable.GetOrderedXformOps()]
+            if xformable.GetResetXformStack():
+                break
+        prim = prim.GetParent()
+    return attributes
+
+
+def _time_varying(prim, moving: dict) -> bool:
+    """Whether a mesh's points, topology or world transform have time samples
+    (``moving`` memoizes the transforms per prim, shared by siblings)."""
+    from pxr import UsdGeom
+
+    mesh = UsdGeom.Mesh(prim)
+    own = (mesh.GetPointsAttr(), mesh.GetFaceVertexCountsAttr(), mesh.GetFaceVertexIndicesAttr())
+    return any(a and a.GetNumTimeSamples() > 0 for a in own) or _transform_moves(prim, moving)
+
+
+def _transform_moves(prim, moving: dict) -> bool:
+    from pxr import UsdGeom
+
+    path = prim.GetPath()
+    if path not in moving:
+        xformable = UsdGeom.Xformable(prim)
+        ops = xformable.GetOrderedXformOps() if xformable else []
+        result = any(op.GetAttr().GetNumTimeSamples() > 0 for op in ops)
+        parent = prim.GetParent()
+        if not result and parent and not parent.IsPseudoRoot():
+            if not (xformable and xformable.GetResetXformStack()):
+                result = _transform_moves(parent, moving)
+        moving[path] = result
+    return moving[path]
+
+
+def _first_sample_without_default(prims) -> float | None:
+    """Earliest time sample among geometry attributes that have no default value."""
+    from pxr import Usd
+
+    first = None
+    for prim in prims:
+        for attribute in _geometry_attributes(prim):
+            if not attribute or not attribute.GetNumTimeSamples():
+                continue
+            if attribute.Get(Usd.TimeCode.Default()) is not None:
+                continue
+            t = attribute.GetTimeSamples()[0]
+            first = t if first is None else min(first, t)
+    return first
 
 
 def _usd_mesh_part(path: Path, mesh, time) -> RawPart:

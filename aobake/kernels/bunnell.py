@@ -451,8 +451,11 @@ def disk_pair32(dx, dy, dz, r2, mx, my, mz, wa, a, nx, ny, nz, has_normal, measu
     e = -(mx * dx + my * dy + mz * dz)
     nd = nx * dx + ny * dy + nz * dz
     if measure == MEASURE_COSINE and has_normal:
-        # w A cos_e cos_r / (pi r^2 + A) with cos = dot / r: no square root
-        c = wa * max(nd, ZERO32) / (r2 * (PI32 * r2 + a))
+        # w A cos_e cos_r / (pi r^2 + A) with cos = dot / r: no square root; the
+        # denominator underflows to 0 in float32 for disks ~1e-9 of the scene with the
+        # receiver on top (its own disk, nd = 0): that term is 0, never 0 / 0
+        den = r2 * (PI32 * r2 + a)
+        c = wa * max(nd, ZERO32) / den if den > ZERO32 else ZERO32
     else:
         r = np.sqrt(r2)
         if measure == MEASURE_COSINE:

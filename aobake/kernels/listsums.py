@@ -6,6 +6,10 @@ One loop, :func:`sum_list`, serves every case: it takes the term of one entry (a
 arguments, so each case still compiles to a loop of its own without a branch inside
 (a branch would stop vectorisation). Accumulators are tuples of scalars for the same
 reason. Imports numpy, numba and ``aobake.constants`` only.
+
+numba caches each kernel by its own file's time stamp: the ``listterms`` and
+``bunnell`` terms inlined here do not invalidate it, so after changing them, touch
+this file (or delete ``__pycache__``) or stale machine code keeps running.
 """
 
 from __future__ import annotations

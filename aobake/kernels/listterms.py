@@ -184,8 +184,11 @@ def cosine_pair(near, j, dx, dy, dz, r2, wa, nx, ny, nz, max_d2, min_d2):
     a = near[S_A, j]
     e = -(near[S_MX, j] * dx + near[S_MY, j] * dy + near[S_MZ, j] * dz)
     g = max(nx * dx + ny * dy + nz * dz, ZERO32)
-    c = wa * g / (r2 * (PI32 * r2 + a))
-    skip = (r2 <= np.float32(COINCIDENT_REL) * a) | (r2 > max_d2) | (r2 < min_d2)
+    den = r2 * (PI32 * r2 + a)
+    c = wa * g / den
+    # den underflows to 0 in float32 for disks ~1e-9 of the scene with the receiver on
+    # top (its own disk, g = 0): 0 / 0 must not become NaN
+    skip = (r2 <= np.float32(COINCIDENT_REL) * a) | (r2 > max_d2) | (r2 < min_d2) | (den <= ZERO32)
     c = ZERO32 if skip else c
     return c * max(e, ZERO32), c * max(-e, ZERO32)
 

@@ -9,7 +9,7 @@ from ..constants import FASTMATH
 
 
 @njit(cache=True, fastmath=FASTMATH, error_model="numpy")
-def rasterize(screen, faces, values, depth, image):
+def rasterize(screen, faces, values, depth, image, row0):
     """Draw triangles into ``image`` with a depth test, interpolating ``values``.
 
     Parameters
@@ -23,6 +23,9 @@ def rasterize(screen, faces, values, depth, image):
         what a preview needs.
     depth, image : (h, w) float64
         Depth buffer (start at +inf) and output (start at the background); written in place.
+    row0 : int
+        Screen row of ``image``'s first row: a band of rows ``row0 .. row0 + h - 1`` is
+        drawn, each pixel exactly as in the whole image (memory stays one band).
 
     Notes
     -----
@@ -41,8 +44,8 @@ def rasterize(screen, faces, values, depth, image):
             continue
         xmin = max(int(np.floor(min(x0, min(x1, x2)))), 0)
         xmax = min(int(np.ceil(max(x0, max(x1, x2)))), w - 1)
-        ymin = max(int(np.floor(min(y0, min(y1, y2)))), 0)
-        ymax = min(int(np.ceil(max(y0, max(y1, y2)))), h - 1)
+        ymin = max(int(np.floor(min(y0, min(y1, y2)))), row0)
+        ymax = min(int(np.ceil(max(y0, max(y1, y2)))), row0 + h - 1)
         inv = 1.0 / area
         for py in range(ymin, ymax + 1):
             sy = py + 0.5
@@ -54,6 +57,6 @@ def rasterize(screen, faces, values, depth, image):
                 if w0 < 0.0 or w1 < 0.0 or w2 < 0.0:
                     continue
                 z = w0 * z0 + w1 * z1 + w2 * z2
-                if z < depth[py, px]:
-                    depth[py, px] = z
-                    image[py, px] = w0 * values[a] + w1 * values[b] + w2 * values[c]
+                if z < depth[py - row0, px]:
+                    depth[py - row0, px] = z
+                    image[py - row0, px] = w0 * values[a] + w1 * values[b] + w2 * values[c]

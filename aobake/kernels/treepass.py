@@ -4,6 +4,10 @@ near-field disks for their cells (``polygon.cell_terms``).
 
 Imports numpy, numba and ``aobake.constants`` only. Symbols as in
 ``aobake.kernels.bunnell``; the arguments are ``aobake.kernels.structures``'.
+
+numba caches each kernel by its own file's time stamp: the ``listterms`` and
+``bunnell`` terms inlined here do not invalidate it, so after changing them, touch
+this file (or delete ``__pycache__``) or stale machine code keeps running.
 """
 
 from __future__ import annotations

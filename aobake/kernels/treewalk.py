@@ -4,6 +4,10 @@ leaves; far: nodes used whole) that its receivers then sum (``listsums``).
 
 Imports numpy, numba and ``aobake.constants`` only. Symbols as in
 ``aobake.kernels.bunnell``; the tree is ``aobake.kernels.hierarchy``'s.
+
+numba caches each kernel by its own file's time stamp: the ``listterms`` and
+``bunnell`` terms inlined here do not invalidate it, so after changing them, touch
+this file (or delete ``__pycache__``) or stale machine code keeps running.
 """
 
 from __future__ import annotations

@@ -15,6 +15,11 @@ from typing import Any
 #: What ``bake --method`` takes, in the order ``--help`` lists them.
 METHODS = ("embree", "bunnell")
 
+#: Methods whose vertices are baked independently: ``run`` takes ``vertices=(lo, hi)``
+#: and a mesh may be baked in pieces (``aobake batch --split``). Bunnell's passes and
+#: cluster tree couple every vertex.
+SPLITTABLE = ("embree",)
+
 
 @dataclass(frozen=True)
 class MethodResult:
@@ -54,8 +59,18 @@ def make_options(name: str, options=None, **changes):
     return build(options_class(name), options, **changes)
 
 
-def run(name: str, surface, options=None, progress=None, **changes) -> MethodResult:
-    """Bake ``surface`` with method ``name``; ``options`` as :func:`make_options` takes them."""
+def run(name: str, surface, options=None, progress=None, *, vertices=None, **changes) -> MethodResult:
+    """Bake ``surface`` with method ``name``; ``options`` as :func:`make_options` takes them.
+
+    ``vertices=(lo, hi)``: bake only those vertices (methods in :data:`SPLITTABLE`);
+    the result then holds hi - lo values."""
+    from ..mesh import check_extent
+
     opts = make_options(name, options, **changes)
+    check_extent(surface.positions, surface.source)  # every vertex at one point: no AO
     module = importlib.import_module(f"{__name__}.{name}")
-    return module.run(surface, opts, progress)
+    if vertices is None:
+        return module.run(surface, opts, progress)
+    if name not in SPLITTABLE:
+        raise ValueError(f"{name} couples all vertices and cannot bake a vertex range")
+    return module.run(surface, opts, progress, vertices=vertices)

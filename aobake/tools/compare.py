@@ -38,8 +38,9 @@ class Report:
     Attributes
     ----------
     n_vertices : int
-    rmse, mae, bias, max_abs : float
-        Root-mean-square, mean absolute, mean signed (b - a) and largest absolute error.
+    rmse, mae, mean_error, max_abs : float
+        Root-mean-square, mean absolute, mean signed (b - a) and largest absolute error
+        (``mean_error``, not "bias": in ``bake``, ``--bias`` is the ray-origin offset).
     p50, p95, p99 : float
         Percentiles of |b - a|.
     threshold : float
@@ -51,7 +52,7 @@ class Report:
     n_vertices: int
     rmse: float
     mae: float
-    bias: float
+    mean_error: float
     max_abs: float
     p50: float
     p95: float
@@ -68,7 +69,7 @@ class Report:
         return d
 
     def to_json(self) -> str:
-        return json.dumps(self.to_dict(), indent=2)
+        return json.dumps(self.to_dict(), indent=2, allow_nan=False)
 
     def to_text(self) -> str:
         """A small aligned table for a terminal."""
@@ -77,7 +78,7 @@ class Report:
             f"{b} against {a}: {self.n_vertices} vertices (ao = 1 - A; error = {b} - {a})",
             f"  RMSE      {self.rmse:.6f}",
             f"  MAE       {self.mae:.6f}",
-            f"  bias      {self.bias:+.6f}",
+            f"  mean err  {self.mean_error:+.6f}",
             f"  max |err| {self.max_abs:.6f}",
             f"  p50/p95/p99 |err|  {self.p50:.6f} / {self.p95:.6f} / {self.p99:.6f}",
             f"  |err| > {self.threshold:g}: {100 * self.above:.2f}% of vertices",
@@ -158,7 +159,7 @@ def compare_ao(
         n_vertices=int(a.size),
         rmse=float(np.sqrt(np.mean(err**2))),
         mae=float(abs_err.mean()),
-        bias=float(err.mean()),
+        mean_error=float(err.mean()),
         max_abs=float(abs_err.max()),
         p50=float(p50),
         p95=float(p95),
@@ -176,7 +177,7 @@ def plot_compare(a, b, path: str | Path, *, names: tuple[str, str] = ("a", "b"))
     Raises
     ------
     AobakeError
-        matplotlib is not installed (``pip install 'aobake[plot]'``).
+        matplotlib is not installed.
     """
     plt = pyplot()
     a = np.asarray(a, dtype=np.float64)

@@ -8,9 +8,9 @@ from __future__ import annotations
 from ..errors import AobakeError
 
 
-def pyplot():
-    """matplotlib.pyplot on the non-interactive Agg backend, or :class:`AobakeError`
-    naming the extra to install (matplotlib is optional)."""
+def pyplot(*, required: bool = True):
+    """matplotlib.pyplot on the non-interactive Agg backend; without matplotlib (an
+    optional dependency), :class:`AobakeError` saying so, or None if not ``required``."""
     try:
         import matplotlib
 
@@ -18,5 +18,9 @@ def pyplot():
         import matplotlib.pyplot as plt
         import matplotlib.ticker  # noqa: F401  (plots set tick formatters)
     except ImportError as exc:
-        raise AobakeError("plotting needs matplotlib: pip install 'aobake[plot]'") from exc
+        if not required:
+            return None
+        raise AobakeError(
+            "plotting needs matplotlib, which is not installed (pip install matplotlib)"
+        ) from exc
     return plt

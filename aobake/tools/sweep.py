@@ -42,7 +42,7 @@ class SweepRow:
     rays: int
     rmse: float
     mae: float
-    bias: float
+    mean_error: float
     p99: float
     max_abs: float
     pareto: bool = False
@@ -113,7 +113,7 @@ def run_sweep(
             rays=int(rays),
             rmse=float(np.sqrt(np.mean(err**2))),
             mae=float(np.mean(np.abs(err))),
-            bias=float(np.mean(err)),
+            mean_error=float(np.mean(err)),
             p99=float(np.percentile(np.abs(err), 99)),
             max_abs=float(np.abs(err).max()),
         )
@@ -139,13 +139,13 @@ def mark_pareto(rows: list[SweepRow]) -> list[SweepRow]:
 def to_markdown(rows: list[SweepRow]) -> str:
     """The table printed by ``aobake sweep`` (Pareto-optimal rows marked with *)."""
     lines = [
-        "| method | settings | seconds | rays | RMSE | MAE | bias | p99 | max | Pareto |",
+        "| method | settings | seconds | rays | RMSE | MAE | mean error | p99 | max | Pareto |",
         "|---|---|---:|---:|---:|---:|---:|---:|---:|:---:|",
     ]
     for r in rows:
         lines.append(
             f"| {r.method} | {r.label} | {r.seconds:.3f} | {r.rays} | {r.rmse:.4f} | {r.mae:.4f} | "
-            f"{r.bias:+.4f} | {r.p99:.4f} | {r.max_abs:.4f} | {'*' if r.pareto else ''} |"
+            f"{r.mean_error:+.4f} | {r.p99:.4f} | {r.max_abs:.4f} | {'*' if r.pareto else ''} |"
         )
     return "\n".join(lines)
 
@@ -162,7 +162,7 @@ def to_csv(rows: list[SweepRow]) -> str:
 
 
 def to_json(rows: list[SweepRow], meta: dict) -> str:
-    return json.dumps({"meta": meta, "rows": [asdict(r) for r in rows]}, indent=2)
+    return json.dumps({"meta": meta, "rows": [asdict(r) for r in rows]}, indent=2, allow_nan=False)
 
 
 def plot_sweep(rows: list[SweepRow], path, *, title: str = "") -> None:

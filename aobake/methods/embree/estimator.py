@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 import os
+import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
@@ -16,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..._types import AOArray, IndexArray
-from ...constants import ADAPTIVE_FIRST_ROUND, CHUNK_RAYS, INFINITE_DISTANCE, MEASURE_CODES, Z95
+from ...constants import ADAPTIVE_FIRST_ROUND, CHUNK_RAYS, MEASURE_CODES, Z95
 from ...contacts import contact_origins, ray_offsets
 from ...errors import NumericalError
 from ...kernels import rays as _k
@@ -24,7 +25,7 @@ from ...kernels import topology as _topo
 from ...mesh import Surface
 from ...options import build
 from ...progress import NullProgress, Progress
-from ...tracing import Tracer, split, trace_chunks
+from ...tracing import Tracer, trace_chunks
 from .. import MethodResult
 from .options import EmbreeOptions
 
@@ -64,6 +65,23 @@ def _rounds(n_rays: int, adaptive: bool) -> list[tuple[int, int]]:
         out.append((j0, j1))
         j0, j1 = j1, min(2 * j1, n_rays)
     return out
+
+
+def ray_chunks(active: np.ndarray, j0: int, j1: int, chunk_rays: int, threads: int):
+    """(vertices, ja, jb) work items covering rays j0..j1-1 of every ``active`` vertex.
+
+    At least 4 items per thread so small meshes keep every core busy and ray generation
+    overlaps tracing; at most ``chunk_rays`` rays per item (memory): a vertex with more
+    rays than that has its sample range cut into pieces. A generator: 2**32 rays per
+    vertex on a large mesh are billions of items, made as they are traced.
+    """
+    per = j1 - j0
+    per_chunk = max(1, min(chunk_rays // per, -(-active.size // (4 * threads))))
+    step = per if per_chunk > 1 or per <= chunk_rays else max(1, chunk_rays)
+    for start in range(0, active.size, per_chunk):
+        vertices = active[start : start + per_chunk]
+        for ja in range(j0, j1, step):
+            yield vertices, ja, min(ja + step, j1)
 
 
 def half_width(hits: np.ndarray, n: np.ndarray) -> np.ndarray:
@@ -135,9 +153,14 @@ def embree_ao(
     return estimate(surface, build(EmbreeOptions, options, **changes), progress)
 
 
-def run(surface: Surface, options: EmbreeOptions, progress: Progress | None = None) -> MethodResult:
-    """The method interface (:mod:`aobake.methods`)."""
-    result = estimate(surface, options, progress)
+def run(
+    surface: Surface,
+    options: EmbreeOptions,
+    progress: Progress | None = None,
+    vertices: tuple[int, int] | None = None,
+) -> MethodResult:
+    """The method interface (:mod:`aobake.methods`); ``vertices``: see :func:`estimate`."""
+    result = estimate(surface, options, progress, vertices=vertices)
     return MethodResult(result.ao, result.n_rays, result.contacts)
 
 
@@ -149,54 +172,64 @@ def estimate(
     chunk_rays: int = CHUNK_RAYS,
     stratified: bool = True,
     contact_fix: bool = True,
+    vertices: tuple[int, int] | None = None,
 ) -> EmbreeAO:
     """:func:`embree_ao` with the knobs tests and the bench turn: ``chunk_rays`` rays per
     Embree call at most (memory; no effect on the result), ``stratified=False`` plain
     random numbers instead of the scrambled Sobol points, ``contact_fix=False`` plain
-    offset origins (the classic bug, :func:`aobake.contacts.contact_origins`)."""
+    offset origins (the classic bug, :func:`aobake.contacts.contact_origins`).
+
+    ``vertices=(lo, hi)``: trace only vertices lo..hi-1 against the whole scene and
+    return their results alone (``ao`` and ``rays`` of length hi - lo). Every ray is a
+    pure function of (seed, vertex, sample), so the pieces of a mesh, concatenated,
+    equal the whole bake bit for bit (``aobake batch --split``)."""
     t0 = time.perf_counter()
     n_rays = options.n_rays
     threads = max(1, int(options.threads or os.cpu_count() or 1))
     progress = progress or NullProgress()
 
     n = surface.n_vertices
+    lo, hi = (0, n) if vertices is None else (int(vertices[0]), int(vertices[1]))
+    if not 0 <= lo <= hi <= n:
+        raise ValueError(f"vertex range ({lo}, {hi}) is not within the mesh's {n} vertices")
     tracer = Tracer(surface.positions, surface.faces)
     edges = _topo.longest_edges(surface.positions, surface.faces)
     offsets = ray_offsets(surface, tracer.magnitude, options.bias, edges)
     if contact_fix:
         origins, contacts = contact_origins(surface, tracer, offsets, edges)
     else:
-        origins, contacts = (tracer.local + offsets[:, None] * surface.normals).astype(np.float32), 0
+        origins, contacts = tracer.frame(tracer.local + offsets[:, None] * surface.normals), 0
     normals = np.ascontiguousarray(surface.normals, dtype=np.float64)
     keys = _k.vertex_keys(np.uint64(options.seed), n)
     mode = MEASURE_CODES[options.measure] + (0 if stratified else 2)
-    tfar = INFINITE_DISTANCE if options.max_distance is None else float(options.max_distance)
+    tfar = None if options.max_distance is None else float(options.max_distance)
     tolerance = options.tolerance
 
     hits = np.zeros(n, dtype=np.int64)
     cast = np.zeros(n, dtype=np.int64)
-    active = np.arange(n, dtype=np.int64)
-    progress.start(n * n_rays, "embree")
+    active = np.arange(lo, hi, dtype=np.int64)
+    progress.start(active.size * n_rays, "embree")
 
-    def trace(vertex_index: np.ndarray, j0: int, j1: int) -> int:
+    lock = threading.Lock()
+
+    def trace(chunk) -> int:
+        vertex_index, j0, j1 = chunk
         k = vertex_index.size * (j1 - j0)
         org = np.zeros((k, 3), dtype=np.float32)
         dirs = np.zeros((k, 3), dtype=np.float32)
         _k.generate_rays(origins, normals, keys, vertex_index, j0, j1, mode, org, dirs)
         ids = tracer.occluded(org, dirs, tfar)
-        _k.count_hits(ids, j1 - j0, vertex_index, hits)
+        with lock:  # a vertex's rays may span chunks: integer sums, any order
+            _k.count_hits(ids, j1 - j0, vertex_index, hits)
         return k
 
     pool = ThreadPoolExecutor(max_workers=threads)
     try:
         for j0, j1 in _rounds(n_rays, tolerance is not None):
             before = hits[active]
-            # at least 4 chunks per thread so small meshes keep every core busy and ray
-            # generation overlaps tracing; at most chunk_rays rays per chunk (memory)
-            per_chunk = max(1, min(chunk_rays // (j1 - j0), -(-active.size // (4 * threads))))
             trace_chunks(
-                split(active, per_chunk),
-                lambda c, j0=j0, j1=j1: trace(c, j0, j1),
+                ray_chunks(active, j0, j1, chunk_rays, threads),
+                trace,
                 threads=threads,
                 progress=progress,
                 pool=pool,
@@ -216,6 +249,7 @@ def estimate(
         pool.shutdown(wait=True, cancel_futures=True)
     progress.finish()
 
+    hits, cast = hits[lo:hi], cast[lo:hi]
     denom = np.maximum(cast, 1)
     ao = 1.0 - hits / denom
     if not np.isfinite(ao).all() or ao.min() < 0.0 or ao.max() > 1.0:

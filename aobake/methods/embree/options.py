@@ -13,6 +13,9 @@ from ...options import (
     validate,
 )
 
+#: Most rays per vertex: the Sobol index of a ray is a 32-bit integer.
+MAX_RAYS = 2**32
+
 
 @dataclass(frozen=True)
 class EmbreeOptions:
@@ -36,7 +39,7 @@ class EmbreeOptions:
         Worker threads (default: all cores); the result does not depend on it.
     """
 
-    n_rays: int = option(256, "Rays per vertex (the most, with --tolerance).", kind=int, low=1, flag="rays")
+    n_rays: int = option(256, "Rays per vertex (the most, with --tolerance).", kind=int, low=1, high=MAX_RAYS, flag="rays")
     measure: str = measure_option()
     max_distance: float | None = max_distance_option()
     bias: float | None = option(

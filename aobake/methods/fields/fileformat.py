@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from ...errors import InputError
+from ...io.common import check_input_file
 from ...kernels import field_model as _model
 from .field import MODEL_CODES, AOField
 
@@ -100,7 +101,7 @@ def load_field(path: str | Path) -> AOField:
         One line naming the file: unreadable or not an npz, truncated, a missing key,
         a wrong dtype or shape, another format version, or inconsistent values.
     """
-    path = Path(path)
+    path = check_input_file(path, "field file")
     try:
         with np.load(path, allow_pickle=False) as z:
             names = set(z.files)

@@ -61,10 +61,10 @@ class FieldOptions:
         kind=str,
         choices=SAMPLERS,
     )
-    resolution: int = option(16, "Field texels per cube-face edge.", kind=int, low=1)
-    radial_samples: int = option(15, "Sample distances per texel.", kind=int, low=3)
-    raster_size: int = option(32, "Rasterizer cube-map edge (texels).", kind=int, low=1)
-    n_rays: int = option(1024, "Embree rays per sample point.", kind=int, low=1, flag="rays")
+    resolution: int = option(16, "Field texels per cube-face edge.", kind=int, low=1, high=256)
+    radial_samples: int = option(15, "Sample distances per texel.", kind=int, low=3, high=256)
+    raster_size: int = option(32, "Rasterizer cube-map edge (texels).", kind=int, low=1, high=1024)
+    n_rays: int = option(1024, "Embree rays per sample point.", kind=int, low=1, high=2**20, flag="rays")
     r_far: float | None = option(
         None,
         "Outer radius of the field (mesh units).",
@@ -80,7 +80,7 @@ class FieldOptions:
         kind=str,
         choices=MODELS,
     )
-    prefilter: int = option(1, "Box prefilter: sub-directions per texel edge.", kind=int, low=1)
+    prefilter: int = option(1, "Box prefilter: sub-directions per texel edge.", kind=int, low=1, high=16)
     seed: int = seed_option()
     threads: int | None = threads_option()
 

@@ -30,11 +30,12 @@ def footprint_samples(positions, faces, geometry, *, n_rays, seed, threads, prog
     """
     anchors, tangents, radii, centre = geometry
     tracer = Tracer(positions, faces)
-    shift = np.asarray(centre, dtype=np.float64) - tracer.center
+    # the kernel writes float32 origins in Embree's frame: lengths divided by its scale
+    shift = (np.asarray(centre, dtype=np.float64) - tracer.center) / tracer.scale
     geom = (
         np.ascontiguousarray(anchors, dtype=np.float64),
-        np.ascontiguousarray(tangents, dtype=np.float64),
-        np.ascontiguousarray(radii, dtype=np.float64),
+        np.ascontiguousarray(tangents, dtype=np.float64) / tracer.scale,
+        np.ascontiguousarray(radii, dtype=np.float64) / tracer.scale,
         np.ascontiguousarray(shift),
     )
     n = geom[0].shape[0]
