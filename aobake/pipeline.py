@@ -869,6 +869,11 @@ def _write_plain_ply(path: Path, positions, faces) -> None:
     path.write_text("\n".join(lines) + "\n")
 
 
+# Options that run kernels a default bake does not: the disk method's later passes (and
+# its uniform measure) use a second tree-pass kernel (kernels.treepass.hierarchy_pass).
+_WARM_UP_VARIANTS = {"bunnell": (("--passes 2", {"passes": 2}),)}
+
+
 def warm_up(progress: Progress | None = None) -> WarmUpReport:
     """Compile what the commands need (numba caches it on disk), so that a user's first
     ``aobake bake`` / ``field`` / ``preview`` does not: every method, a small field fit and
@@ -888,6 +893,9 @@ def warm_up(progress: Progress | None = None) -> WarmUpReport:
             bake_file(d / "scene.ply", [d / f"{method}.ply", d / f"{method}.usda"], method=method,
                       progress=progress)
             steps.append(f"bake --method {method}")
+            for flags, extra in _WARM_UP_VARIANTS.get(method, ()):
+                bake_file(d / "scene.ply", d / f"{method}_variant.ply", method=method, progress=progress, **extra)
+                steps.append(f"bake --method {method} {flags}")
         fit_field_file(d / "cube.ply", d / "cube.npz", progress=progress, resolution=4, radial_samples=8)
         steps.append("field")
         grid = d / "grid.ply"

@@ -147,6 +147,8 @@ def test_warm_up_compiles_what_the_commands_need(tmp_path):
     for args in (
         ["bake", str(mesh), "-o", str(tmp_path / "e.ply")],
         ["bake", str(mesh), "-o", str(tmp_path / "b.usda"), "--method", "bunnell"],
+        ["bake", str(mesh), "-o", str(tmp_path / "u.ply"), "--method", "bunnell", "--measure", "uniform"],
+        ["bake", str(mesh), "-o", str(tmp_path / "p.ply"), "--method", "bunnell", "--passes", "3"],
         ["field", str(tmp_path / "ball.ply"), "-o", str(tmp_path / "ball.npz"), "--resolution", "4"],
         ["bake", str(mesh), "-o", str(tmp_path / "f.ply"), "--field", f"{tmp_path / 'ball.npz'}@0,0,1"],
         ["preview", str(tmp_path / "e.ply"), "-o", str(tmp_path / "e.png"), "--size", "32"],
