@@ -513,6 +513,8 @@ def fan_triangulate(counts: IndexArray, indices: IndexArray) -> IndexArray:
     """Triangles (m, 3) fanned from each polygon's first corner (< 3 corners: dropped)."""
     counts = np.asarray(counts, dtype=np.int64)
     indices = np.asarray(indices, dtype=np.int64)
+    if counts.size and (counts == 3).all() and indices.size == 3 * counts.size:
+        return indices.reshape(-1, 3).copy()  # all triangles: nothing to fan
     starts = np.cumsum(counts) - counts
     n_tri = np.maximum(counts - 2, 0)
     first = np.repeat(starts, n_tri)
