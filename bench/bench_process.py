@@ -14,7 +14,7 @@ subdivision 9 over 1024^2 (3,672,067), with ``--huge`` subdivision 10 over 4096^
 
 1. Whole process: ``python -m aobake bake SCENE -o out.ply --up Z`` in a fresh process
    (warm numba cache) at --rays 1, 16, 64 and ``--method bunnell`` at its defaults:
-   wall time, peak RSS (``wait4``), bytes of peak RSS per vertex. On the 721k scene
+   wall time, peak RSS (VmHWM at exit), bytes of peak RSS per vertex. On the 721k scene
    against bare embreex tracing the very same rays (origins from ``contact_origins``,
    directions from ``sample_directions``, prepared beforehand, same chunks, same thread
    count): the ratio is the process overhead the issue's goals bound.
@@ -114,25 +114,38 @@ def mem_available() -> int:
     return 0
 
 
+#: The child's script: runs ``aobake`` and, at exit, copies its /proc status (VmHWM: the
+#: peak resident set of this process image; ``wait4``'s ru_maxrss would include the
+#: parent's memory at fork time).
+LAUNCH = """import atexit, runpy, shutil, sys
+atexit.register(shutil.copyfile, "/proc/self/status", sys.argv.pop(1))
+sys.argv[0] = "aobake"
+runpy.run_module("aobake", run_name="__main__")
+"""
+
+
 def run_bake(code: str, ply: Path, args: list[str], out_dir: str, profile: Path | None = None):
-    """(wall seconds, peak RSS bytes) of one ``aobake bake`` in a fresh process, with
-    ``code`` (a checkout) first on PYTHONPATH."""
+    """(wall seconds, peak RSS bytes) of one ``aobake bake`` in a fresh process that
+    imports aobake from the checkout ``code`` (its working directory and PYTHONPATH)."""
     env = dict(os.environ, PYTHONPATH=code)
+    status, launch = os.path.join(out_dir, "status"), Path(out_dir) / "launch.py"
+    launch.write_text(LAUNCH)
     cmd = [sys.executable]
     if profile is not None:
         cmd += ["-m", "cProfile", "-o", str(profile)]
-    cmd += ["-m", "aobake", "bake", str(ply), "-o", os.path.join(out_dir, "out.ply"),
+    cmd += [str(launch), status, "bake", str(ply), "-o", os.path.join(out_dir, "out.ply"),
             "--up", "Z", "--quiet", *args]  # fmt: skip
     t0 = time.perf_counter()
-    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-    _, status, usage = os.wait4(proc.pid, 0)
+    proc = subprocess.run(cmd, env=env, cwd=code, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     wall = time.perf_counter() - t0
-    proc.returncode = os.waitstatus_to_exitcode(status)
-    err = proc.stderr.read().decode(errors="replace")
-    proc.stderr.close()
     if proc.returncode != 0:
-        raise SystemExit(f"aobake bake {' '.join(args)} failed ({proc.returncode}): {err.strip()}")
-    return wall, usage.ru_maxrss * 1024
+        err = proc.stderr.decode(errors="replace").strip()
+        raise SystemExit(f"aobake bake {' '.join(args)} failed ({proc.returncode}): {err}")
+    peak = 0
+    for line in Path(status).read_text().splitlines():
+        if line.startswith("VmHWM:"):
+            peak = int(line.split()[1]) * 1024
+    return wall, peak
 
 
 def stage_shares(profile: Path) -> dict[str, float]:
