@@ -130,23 +130,21 @@ def angle_weighted_normals(positions: FloatArray, faces: IndexArray) -> FloatArr
         Unit normals; a zero row where the weighted sum vanishes (isolated vertices,
         only degenerate faces, or normals that cancel).
     """
+    from .kernels import normals as _k  # numba only when needed
+
     n = positions.shape[0]
-    out = np.zeros((n, 3))
     if faces.shape[0] == 0:
-        return out
-    fn, _ = face_normals_and_areas(positions, faces)
-    tri = positions[faces]
-    for k in range(3):
-        a = tri[:, (k + 1) % 3] - tri[:, k]
-        b = tri[:, (k + 2) % 3] - tri[:, k]
-        la = np.linalg.norm(a, axis=1)
-        lb = np.linalg.norm(b, axis=1)
-        denom = la * lb
-        cos = np.divide(
-            np.einsum("ij,ij->i", a, b), denom, out=np.zeros_like(denom), where=denom > 0
-        )
-        angle = np.arccos(np.clip(cos, -1.0, 1.0))
-        np.add.at(out, faces[:, k], fn * angle[:, None])
+        return np.zeros((n, 3))
+    positions = np.ascontiguousarray(positions, dtype=np.float64)
+    faces = np.ascontiguousarray(faces, dtype=np.int64)
+    if faces.min() < 0 or faces.max() >= n:
+        raise ValueError(f"face indices outside 0..{n - 1}")  # the kernels do not bounds-check
+    fn, cosines = _k.corner_cosines(positions, faces)
+    # arccos in numpy: its SIMD arccos may differ from libm's in the last bit, and these
+    # normals are bit for bit those of the numpy formulation (tests/test_normals_kernel.py)
+    np.arccos(cosines, out=cosines)
+    start, corners = _k.corners_by_vertex(faces, n)
+    out = _k.gather_weighted(fn, cosines, start, corners)
     return normalize_rows(out)
 
 
@@ -515,6 +513,8 @@ def fan_triangulate(counts: IndexArray, indices: IndexArray) -> IndexArray:
     """Triangles (m, 3) fanned from each polygon's first corner (< 3 corners: dropped)."""
     counts = np.asarray(counts, dtype=np.int64)
     indices = np.asarray(indices, dtype=np.int64)
+    if counts.size and (counts == 3).all() and indices.size == 3 * counts.size:
+        return indices.reshape(-1, 3).copy()  # all triangles: nothing to fan
     starts = np.cumsum(counts) - counts
     n_tri = np.maximum(counts - 2, 0)
     first = np.repeat(starts, n_tri)

@@ -715,6 +715,8 @@ def fit_field_file(
 
 def _load_fields(fields) -> list:
     """[(AOField, transform or None, name)] from AOFields, paths, or (item, transform)."""
+    if not fields:
+        return []  # a bake without fields never imports the field method (and its kernels)
     from .methods.fields import AOField, load_field, rigid_transform
 
     out = []

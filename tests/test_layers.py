@@ -192,3 +192,13 @@ def test_io_import_is_light():
 def test_kernels_import_nothing_heavy(module):
     loaded = _loaded_after(f"import aobake.{module}")
     assert not {"trimesh", "embreex", "pxr", "click"} & loaded
+
+
+def test_bake_without_fields_loads_no_field_code():
+    # a bake without --field checks its (empty) field list: that must not import the
+    # field method's modules or kernels (0.6 s on every bake)
+    loaded = _loaded_after("import aobake.pipeline as p; p._load_fields(())")
+    field_code = {m for m in loaded if m.startswith(("aobake.methods.fields.", "aobake.kernels.field"))}
+    assert field_code <= {"aobake.methods.fields.options"}, sorted(field_code)
+    loaded = _loaded_after("import aobake.pipeline as p; p._load_fields([])")
+    assert "aobake.kernels.field_eval" not in loaded

@@ -1,0 +1,296 @@
+"""Whole-process benchmark: ``aobake bake`` as a user runs it, against bare embreex.
+
+Run from the repository root::
+
+    PYTHONPATH=. python bench/bench_process.py                      # 721k scene (~5 min)
+    PYTHONPATH=. python bench/bench_process.py --baseline ../main   # also another checkout
+    PYTHONPATH=. python bench/bench_process.py --big --huge         # + ~3.7M and ~27M scenes
+
+Scenes: an icosphere (radius 0.5, its lowest vertex on the floor) over a square grid
+floor, written as binary little-endian PLY (float32 x y z, uchar/int faces) and cached
+under bench/results/: subdivision 8 over 256^2 cells (721,411 vertices), with ``--big``
+subdivision 9 over 1024^2 (3,672,067), with ``--huge`` subdivision 10 over 4096^2
+(27,267,331; skipped when MemAvailable is short).
+
+1. Whole process: ``python -m aobake bake SCENE -o out.ply --up Z`` in a fresh process
+   (warm numba cache) at --rays 1, 16, 64 and ``--method bunnell`` at its defaults:
+   wall time, peak RSS (VmHWM at exit), bytes of peak RSS per vertex. On the 721k scene
+   against bare embreex tracing the very same rays (origins from ``contact_origins``,
+   directions from ``sample_directions``, prepared beforehand, same chunks, same thread
+   count): the ratio is the process overhead the issue's goals bound.
+2. Stage shares: one run of each configuration under cProfile in a fresh process; the
+   cumulative time of each stage function as a share of the whole (the profiler slows
+   Python-heavy stages more than native ones: shares, not seconds).
+
+Every ratio is of timings taken in this run, round-robin, best of ``--repeats``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import pstats
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+import common as C
+
+#: (label, bake arguments) of the whole-process rows.
+CONFIGS = [
+    ("embree --rays 1", ["--rays", "1", "--seed", "0"]),
+    ("embree --rays 16", ["--rays", "16", "--seed", "0"]),
+    ("embree --rays 64", ["--rays", "64", "--seed", "0"]),
+    ("bunnell (defaults)", ["--method", "bunnell"]),
+]
+#: name -> (icosphere subdivisions, floor cells, vertices)
+SCENES = {
+    "721k": (8, 256, 721_411),
+    "3.7M": (9, 1024, 3_672_067),
+    "27M": (10, 4096, 27_267_331),
+}
+#: Stage -> the functions whose cumulative time it is (first found counts).
+STAGES = [
+    ("read", ("read_parts", "load_mesh")),
+    ("normals", ("angle_weighted_normals",)),
+    ("scene build", ("__init__@tracing.py",)),
+    ("contacts", ("contact_origins", "contact_points")),
+    ("rays + trace", ("trace_chunks",)),
+    ("bunnell", ("run@bunnell",)),
+    ("write", ("write_bake",)),
+]
+GOALS = {"embree --rays 16": 1.3, "embree --rays 64": 1.1}
+SEED = 0  # the --seed of the embree rows
+
+
+def log(msg: str) -> None:
+    print(f"[{time.strftime('%H:%M:%S')}] {msg}", file=sys.stderr, flush=True)
+
+
+def write_binary_ply(path: Path, positions: np.ndarray, faces: np.ndarray) -> None:
+    """A binary little-endian PLY: float32 x y z, faces as uchar count + 3 int32."""
+    header = (
+        "ply\nformat binary_little_endian 1.0\n"
+        f"element vertex {len(positions)}\nproperty float x\nproperty float y\nproperty float z\n"
+        f"element face {len(faces)}\nproperty list uchar int vertex_indices\nend_header\n"
+    )
+    rec = np.empty(len(faces), dtype=[("n", "u1"), ("i", "<i4", (3,))])
+    rec["n"] = 3
+    rec["i"] = faces
+    tmp = path.with_suffix(f".{os.getpid()}.tmp")
+    with open(tmp, "wb") as f:
+        f.write(header.encode("ascii"))
+        f.write(np.ascontiguousarray(positions, dtype="<f4").tobytes())
+        f.write(rec.tobytes())
+    os.replace(tmp, path)
+
+
+def scene_file(name: str) -> Path:
+    """The cached binary PLY of scene ``name`` (built on first use)."""
+    sub, cells, _ = SCENES[name]
+    path = C.RESULTS_DIR / f"process_sphere{sub}_floor{cells}.ply"
+    if not path.exists():
+        from aobake.testing import scenes
+
+        log(f"building the {name} scene (icosphere {sub}, floor {cells}^2)")
+        surface, _ = scenes.sphere_on_ground(0.5, sub, cells=cells)
+        C.RESULTS_DIR.mkdir(parents=True, exist_ok=True)
+        write_binary_ply(path, surface.positions, surface.faces)
+    return path
+
+
+def mem_available() -> int:
+    """Bytes of MemAvailable (/proc/meminfo), or 0 when unknown."""
+    try:
+        for line in Path("/proc/meminfo").read_text().splitlines():
+            if line.startswith("MemAvailable:"):
+                return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return 0
+
+
+#: The child's script: runs ``aobake`` and, at exit, copies its /proc status (VmHWM: the
+#: peak resident set of this process image; ``wait4``'s ru_maxrss would include the
+#: parent's memory at fork time).
+LAUNCH = """import atexit, runpy, shutil, sys
+atexit.register(shutil.copyfile, "/proc/self/status", sys.argv.pop(1))
+sys.argv[0] = "aobake"
+runpy.run_module("aobake", run_name="__main__")
+"""
+
+
+def run_bake(code: str, ply: Path, args: list[str], out_dir: str, profile: Path | None = None):
+    """(wall seconds, peak RSS bytes) of one ``aobake bake`` in a fresh process that
+    imports aobake from the checkout ``code`` (its working directory and PYTHONPATH)."""
+    env = dict(os.environ, PYTHONPATH=code)
+    status, launch = os.path.join(out_dir, "status"), Path(out_dir) / "launch.py"
+    launch.write_text(LAUNCH)
+    cmd = [sys.executable]
+    if profile is not None:
+        cmd += ["-m", "cProfile", "-o", str(profile)]
+    cmd += [str(launch), status, "bake", str(ply), "-o", os.path.join(out_dir, "out.ply"),
+            "--up", "Z", "--quiet", *args]  # fmt: skip
+    t0 = time.perf_counter()
+    proc = subprocess.run(cmd, env=env, cwd=code, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    wall = time.perf_counter() - t0
+    if proc.returncode != 0:
+        err = proc.stderr.decode(errors="replace").strip()
+        raise SystemExit(f"aobake bake {' '.join(args)} failed ({proc.returncode}): {err}")
+    peak = 0
+    for line in Path(status).read_text().splitlines():
+        if line.startswith("VmHWM:"):
+            peak = int(line.split()[1]) * 1024
+    return wall, peak
+
+
+def stage_shares(profile: Path) -> dict[str, float]:
+    """Share of the profiled total per stage (cumulative time of the stage's function)."""
+    stats = pstats.Stats(str(profile)).stats
+    total = max(ct for (_, _, _, ct, _) in stats.values())
+    cum: dict[str, float] = {}
+    for (file, _, func), (_, _, _, ct, _) in stats.items():
+        base = os.path.basename(file)
+        for key in (func, f"{func}@{base}", f"{func}@{Path(file).parent.name}"):
+            cum[key] = max(cum.get(key, 0.0), ct)
+    out = {}
+    for stage, names in STAGES:
+        for n in names:
+            if n in cum:
+                out[stage] = cum[n] / total
+                break
+    return out
+
+
+class TraceOnly:
+    """Bare embreex tracing the rays ``aobake bake --rays N`` casts (prepared beforehand)."""
+
+    def __init__(self, ply: Path):
+        from aobake.contacts import contact_origins, ray_offsets
+        from aobake.io import load_mesh
+        from aobake.tracing import Tracer
+
+        self.surface = load_mesh(ply)
+        self.scene = Tracer(self.surface.positions, self.surface.faces)
+        self.origins, _ = contact_origins(
+            self.surface, self.scene, ray_offsets(self.surface, self.scene.magnitude)
+        )
+
+    def runner(self, n_rays: int, threads: int, chunk_rays: int):
+        from concurrent.futures import ThreadPoolExecutor
+
+        from aobake.sampling import sample_directions
+
+        dirs = sample_directions(self.surface.normals, n_rays, seed=SEED, measure="cosine")
+        per = max(1, chunk_rays // n_rays)
+        n = self.surface.n_vertices
+        chunks = [
+            (np.repeat(self.origins[a : a + per], n_rays, axis=0), dirs[a : a + per].reshape(-1, 3))
+            for a in range(0, n, per)
+        ]
+        del dirs
+
+        def run():
+            with ThreadPoolExecutor(max_workers=threads) as pool:
+                return sum(int((h != -1).sum()) for h in pool.map(lambda c: self.scene.occluded(*c), chunks))
+
+        return run
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--big", action="store_true", help="also the ~3.7M-vertex scene")
+    p.add_argument("--huge", action="store_true", help="also the ~27M-vertex scene (needs ~30 GB free)")
+    p.add_argument("--baseline", type=Path, help="another checkout measured in the same run")
+    p.add_argument("--repeats", type=int, default=2)
+    p.add_argument("--threads", type=int, default=os.cpu_count() or 1)
+    p.add_argument("--no-profile", action="store_true", help="skip the stage shares")
+    args = p.parse_args(argv)
+    from aobake.constants import CHUNK_RAYS
+
+    here = str(C.ROOT)
+    codes = [("this tree", here)]
+    if args.baseline is not None:
+        codes.append((f"baseline ({args.baseline})", str(args.baseline.resolve())))
+    facts = C.machine_facts()
+    print("## Whole process: `aobake bake` in a fresh process\n")
+    print(C.markdown_table(["", ""], [[k, v] for k, v in facts]))
+    print()
+
+    names = ["721k"] + (["3.7M"] if args.big else []) + (["27M"] if args.huge else [])
+    with tempfile.TemporaryDirectory() as out_dir:
+        log("warming up the numba cache of each checkout")
+        warm = scene_file("721k")
+        for _, code in codes:
+            for _, bake_args in CONFIGS:
+                run_bake(code, warm, bake_args, out_dir)
+        for name in names:
+            need = SCENES[name][2] * 1200  # the issue measured ~800-900 B/vertex peak
+            if name != "721k" and mem_available() < need:
+                print(f"(skipping the {name} scene: {mem_available() / 2**30:.1f} GiB available, "
+                      f"~{need / 2**30:.0f} GiB needed)\n")  # fmt: skip
+                continue
+            ply = scene_file(name)
+            n_vertices = SCENES[name][2]
+            trace = None
+            if name == "721k":
+                log("preparing trace-only rays")
+                trace = TraceOnly(ply)
+            rows = []
+            for label, bake_args in CONFIGS:
+                best = {}
+                rays = int(bake_args[1]) if bake_args[0] == "--rays" else None
+                tr_run = trace.runner(rays, args.threads, CHUNK_RAYS) if trace and rays else None
+                for _ in range(args.repeats):
+                    for cname, code in codes:
+                        log(f"{name} {label} [{cname}]")
+                        wall, rss = run_bake(code, ply, bake_args, out_dir)
+                        if cname not in best or wall < best[cname][0]:
+                            best[cname] = (wall, max(rss, best.get(cname, (0, 0))[1]))
+                    if tr_run is not None:
+                        t = C.timed(tr_run)
+                        if "trace" not in best or t.seconds < best["trace"][0]:
+                            best["trace"] = (t.seconds, 0)
+                del tr_run
+                for cname, _ in codes:
+                    wall, rss = best[cname]
+                    ratio = ""
+                    if "trace" in best:
+                        goal = GOALS.get(label)
+                        r = wall / best["trace"][0]
+                        ratio = f"{r:.2f}x" + (f" (goal <= {goal})" if goal else "")
+                    rows.append([label, cname, f"{wall:.2f} s",
+                                 f"{best['trace'][0]:.2f} s" if "trace" in best else "",
+                                 ratio, f"{rss / 2**20:.0f} MiB", f"{rss / n_vertices:.0f}"])  # fmt: skip
+            uptime = os.getloadavg()[0]
+            C.print_table(
+                f"{name} scene ({n_vertices:,} vertices), load average now {uptime:.1f}",
+                ["bake", "code", "wall", "embreex trace-only", "wall / trace", "peak RSS", "bytes/vertex"],
+                rows,
+            )
+            if not args.no_profile and name == "721k":
+                prof_rows = []
+                for label, bake_args in CONFIGS:
+                    for cname, code in codes:
+                        prof = Path(out_dir) / "run.prof"
+                        log(f"profiling {name} {label} [{cname}]")
+                        run_bake(code, ply, bake_args, out_dir, profile=prof)
+                        shares = stage_shares(prof)
+                        rest = 1.0 - sum(shares.values())
+                        prof_rows.append([label, cname] + [
+                            f"{100 * shares[s]:.0f}%" if s in shares else "" for s, _ in STAGES
+                        ] + [f"{100 * rest:.0f}%"])  # fmt: skip
+                C.print_table(
+                    f"{name}: share of the whole process per stage (cProfile, one run)",
+                    ["bake", "code"] + [s for s, _ in STAGES] + ["other (imports, checks, ...)"],
+                    prof_rows,
+                )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,72 @@
+"""The fast paths of the PLY writer and the triangulation give the bytes and indices of
+the general code they short-cut."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from aobake.io import ply
+from aobake.io.plyparse import PlyList
+from aobake.mesh import fan_triangulate
+
+
+def _general_fan(counts, indices):
+    """fan_triangulate's general path, for any polygon sizes."""
+    counts = np.asarray(counts, dtype=np.int64)
+    indices = np.asarray(indices, dtype=np.int64)
+    starts = np.cumsum(counts) - counts
+    n_tri = np.maximum(counts - 2, 0)
+    first = np.repeat(starts, n_tri)
+    k = np.arange(int(n_tri.sum())) - np.repeat(np.cumsum(n_tri) - n_tri, n_tri) + 1
+    return np.stack([indices[first], indices[first + k], indices[first + k + 1]], axis=1).reshape(-1, 3)
+
+
+@pytest.mark.parametrize("sizes", [[3] * 7, [3, 4, 3], [3, 3, 2, 5], [4] * 3])
+def test_fan_triangulate_matches_general(sizes):
+    rng = np.random.default_rng(len(sizes))
+    counts = np.array(sizes)
+    indices = rng.integers(0, 100, size=int(counts.sum()))
+    got = fan_triangulate(counts, indices)
+    want = _general_fan(counts, indices)
+    assert got.dtype == want.dtype and np.array_equal(got, want)
+    got[:] = -1  # a fresh array: the caller may write to it
+    assert (indices >= 0).all()
+
+
+def _element(rng, count, list_counts):
+    props = [("x", "<f4", None), ("flag", "|u1", None), ("vertex_indices", "<i4", "|u1"),
+             ("d", ">f8", None), ("texcoord", "<f4", "<u2")]  # fmt: skip
+    columns = {
+        "x": rng.normal(size=count),
+        "flag": rng.integers(0, 255, size=count).astype(np.float64),
+        "vertex_indices": PlyList(np.asarray(list_counts[0]), rng.integers(0, 1000, size=int(np.sum(list_counts[0])))),
+        "d": rng.normal(size=count),
+        "texcoord": PlyList(np.asarray(list_counts[1]), rng.normal(size=int(np.sum(list_counts[1])))),
+    }
+    return props, columns
+
+
+@pytest.mark.parametrize(
+    "list_counts",
+    [([3] * 5, [0] * 5), ([4] * 5, [2] * 5), ([3, 4, 3, 3, 3], [2] * 5), ([3] * 5, [0, 2, 0, 2, 2])],
+    ids=["triangles", "quads", "mixed-faces", "mixed-texcoords"],
+)
+def test_fixed_rows_same_bytes_as_scatter(list_counts):
+    rng = np.random.default_rng(1)
+    props, columns = _element(rng, 5, list_counts)
+    little = [(np.dtype(t).newbyteorder("<"), None if c is None else np.dtype(c).newbyteorder("<"))
+              for _, t, c in props]  # fmt: skip
+    want = ply._scattered_rows(5, props, little, columns)
+    fixed = ply._fixed_rows(5, props, little, columns)
+    varying = any(len(set(c)) > 1 for c in list_counts)
+    assert (fixed is None) == varying
+    assert ply._element_bytes(5, props, columns) == want
+    if fixed is not None:
+        assert fixed == want
+
+
+def test_fixed_rows_empty_element():
+    props = [("x", "<f4", None), ("vertex_indices", "<i4", "|u1")]
+    columns = {"x": np.zeros(0), "vertex_indices": PlyList(np.zeros(0, dtype=np.int64), np.zeros(0))}
+    assert ply._element_bytes(0, props, columns) == b""
