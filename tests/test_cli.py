@@ -12,17 +12,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 import trimesh
-from click.testing import CliRunner
 
 from aobake.cli import main
 from aobake.io import read_bake
 from aobake.progress import COMPILING
 from aobake.testing import scenes
-
-
-@pytest.fixture
-def runner():
-    return CliRunner()
 
 
 @pytest.fixture

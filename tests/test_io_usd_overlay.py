@@ -17,7 +17,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from click.testing import CliRunner
 
 from aobake.cli import main
 from aobake.io import load_mesh, read_bake
@@ -437,11 +436,6 @@ def test_time_samples_without_time_read_at_the_earliest_sample(tmp_path):
 
 
 # -- errors ------------------------------------------------------------------------------
-
-
-@pytest.fixture
-def runner():
-    return CliRunner()
 
 
 def _one_line_error(runner, args, directory, expected):

@@ -15,7 +15,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import trimesh
 from click.testing import CliRunner
 
 import aobake.pipeline
@@ -23,7 +22,6 @@ from aobake.checks import check_result
 from aobake.cli import main
 from aobake.errors import AobakeError, InputError, NumericalError
 from aobake.progress import COMPILING
-from aobake.testing import scenes
 
 
 def _said(result) -> str:
@@ -32,19 +30,6 @@ def _said(result) -> str:
     return "".join(line for line in result.output.splitlines(True) if line.rstrip("\n") != COMPILING)
 
 REPO = Path(__file__).resolve().parents[1]
-
-
-@pytest.fixture
-def runner():
-    return CliRunner()
-
-
-@pytest.fixture
-def scene_ply(tmp_path) -> Path:
-    s, _ = scenes.sphere_on_ground(0.5, 1, gap=0.0, cells=3)
-    path = tmp_path / "scene.ply"
-    trimesh.Trimesh(s.positions, s.faces, process=False).export(path)
-    return path
 
 
 _MESH = """def Mesh "m" {

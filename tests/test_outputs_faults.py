@@ -19,25 +19,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 import trimesh
-from click.testing import CliRunner
 
 import aobake.io.common as common
 from aobake.cli import main
 from aobake.io import read_bake
 from aobake.testing import scenes
-
-
-@pytest.fixture
-def runner():
-    return CliRunner()
-
-
-@pytest.fixture
-def scene_ply(tmp_path) -> Path:
-    s, _ = scenes.sphere_on_ground(0.5, 1, gap=0.0, cells=3)
-    path = tmp_path / "scene.ply"
-    trimesh.Trimesh(s.positions, s.faces, process=False).export(path)
-    return path
 
 
 @pytest.fixture(scope="module")
