@@ -153,7 +153,7 @@ def split_section(work: Path, n_vertices: int, rays: int) -> dict:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--meshes", type=int, default=200)
+    parser.add_argument("--meshes", type=int, default=200, help="small meshes (0: skip that section)")
     parser.add_argument("--rays", type=int, default=256)
     parser.add_argument("--big", type=int, default=4_000_000)
     parser.add_argument("--big-rays", type=int, default=64)
@@ -164,18 +164,19 @@ def main() -> None:
     print(f"# bench_batch: {platform.node()}, {os.cpu_count()} cores, python {platform.python_version()}\n")
     work = Path(tempfile.mkdtemp(prefix="aobake-bench-batch-"))
     try:
-        lib = library_section(work, args.meshes, args.rays)
-        m = lib["meshes"]
-        print(f"## {m} small meshes ({lib['vertices'] / m:.0f} vertices on average), {lib['rays']} rays, PLY + USDA\n")
-        print("| run | wall s | meshes/s | overhead per mesh, s |")
-        print("|---|---:|---:|---:|")
-        for name, t in (("aobake batch --workers 2", lib["batch"]), ("make -j2 batch", lib["make"])):
-            print(f"| {name} | {t:.2f} | {m / t:.1f} | {(2 * t - lib['compute']) / m:.3f} |")
-        print(f"| aobake batch, rerun (all up to date) | {lib['rerun']:.2f} | | |")
-        print(
-            f"\nbatch / make wall time: {lib['batch'] / lib['make']:.3f}; the bakes' compute time "
-            f"{lib['compute']:.2f} s in all; outputs byte-identical: {lib['identical']}\n"
-        )
+        if args.meshes > 0:  # --meshes 0: the --split section alone
+            lib = library_section(work, args.meshes, args.rays)
+            m = lib["meshes"]
+            print(f"## {m} small meshes ({lib['vertices'] / m:.0f} vertices on average), {lib['rays']} rays, PLY + USDA\n")
+            print("| run | wall s | meshes/s | overhead per mesh, s |")
+            print("|---|---:|---:|---:|")
+            for name, t in (("aobake batch --workers 2", lib["batch"]), ("make -j2 batch", lib["make"])):
+                print(f"| {name} | {t:.2f} | {m / t:.1f} | {(2 * t - lib['compute']) / m:.3f} |")
+            print(f"| aobake batch, rerun (all up to date) | {lib['rerun']:.2f} | | |")
+            print(
+                f"\nbatch / make wall time: {lib['batch'] / lib['make']:.3f}; the bakes' compute time "
+                f"{lib['compute']:.2f} s in all; outputs byte-identical: {lib['identical']}\n"
+            )
         big = split_section(work, args.big, args.big_rays)
         bound = 1.1 * (big["unsplit"] + big["build"])
         print(f"## one mesh of {big['vertices']} vertices ({big['desc']}), {big['rays']} rays, PLY\n")
