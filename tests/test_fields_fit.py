@@ -175,6 +175,43 @@ def test_each_kernel_compiled_once(ball):
         assert len(kernel.signatures) == 1, (kernel, kernel.signatures)
 
 
+def _specialisations(kernel):
+    """Signatures compiled in this process and those in the kernel's numba cache index
+    (a cached caller loads its callees inside it, so a warm run compiles none)."""
+    found = {str(sig) for sig in kernel.signatures}
+    cache = getattr(kernel, "_cache", None)
+    if cache is not None and hasattr(cache, "_cache_file"):
+        found |= {str(key[0]) for key in cache._cache_file._load_index()}
+    return found
+
+
+def test_field_helpers_have_one_specialisation(ball):
+    """The helpers the texel fit and the rasterizer call are typed once: no literal
+    counter (``m = 0``) and no mix of C and strided arrays adds a second compile (issue
+    19). ``_solve_small`` keeps its literal-3 version: compiled for a constant size, its
+    loops give other last bits, and results must not change."""
+    import numba
+
+    from aobake.kernels import field_fit, raster
+
+    if numba.config.DISABLE_JIT:
+        pytest.skip("JIT disabled")
+    fit_field(ball, resolution=2, radial_samples=3, raster_size=8)
+    for kernel in (
+        field_fit._den_min,
+        field_fit._centre_cost,
+        field_fit._fit_denominator,
+        field_fit._refine_omega,
+        field_fit._refine_centre,
+        field_fit._fit_centre,
+        raster._fill_polygon,
+        raster._clip_to_face,
+        raster._render_point,
+    ):
+        sigs = _specialisations(kernel)
+        assert len(sigs) == 1, (kernel.py_func.__name__, sigs)
+
+
 # --------------------------------------------------------------------------- command line
 
 

@@ -93,17 +93,18 @@ def _den(beta, s):
 
 
 @njit(cache=True, fastmath=FASTMATH, error_model="numpy")
-def _den_min(beta, slo, shi):
-    """Smallest value of beta0 + beta1 s + beta2 s^2 on [slo, shi] and where it is."""
+def _den_min(b0, b1, b2, slo, shi):
+    """Smallest value of b0 + b1 s + b2 s^2 on [slo, shi] and where it is (scalars, so
+    callers' C and strided arrays share one specialisation)."""
     s_best = slo
-    d_best = _den(beta, slo)
-    d = _den(beta, shi)
+    d_best = b0 + slo * (b1 + slo * b2)
+    d = b0 + shi * (b1 + shi * b2)
     if d < d_best:
         s_best, d_best = shi, d
-    if beta[2] > 0.0:
-        sv = -beta[1] / (2.0 * beta[2])
+    if b2 > 0.0:
+        sv = -b1 / (2.0 * b2)
         if slo < sv < shi:
-            d = _den(beta, sv)
+            d = b0 + sv * (b1 + sv * b2)
             if d < d_best:
                 s_best, d_best = sv, d
     return s_best, d_best
@@ -166,7 +167,7 @@ def _fit_denominator(s, om, ok, slo, npar, beta, work, model):
         if solved:
             for a in range(npar):
                 beta[a] = rhs[a]
-            s_worst, d_worst = _den_min(beta, slo, 1.0)
+            s_worst, d_worst = _den_min(beta[0], beta[1], beta[2], slo, 1.0)
             if d_worst >= floor and np.isfinite(d_worst):
                 return
             if n_cons < 2 and n_cons < npar - 1:
@@ -232,7 +233,7 @@ def _refine_omega(s, om, ok, q, slo, beta, iters, work, model):
             if not _trial_step(h, g, mu, 1e-15, work[2], work[3, :, 0], beta, trial):
                 mu *= 10.0
                 continue
-            _, dmin = _den_min(trial, slo, 1.0)
+            _, dmin = _den_min(trial[0], trial[1], trial[2], slo, 1.0)
             new = np.inf
             if dmin >= den_floor(model):
                 new = 0.0
@@ -260,8 +261,10 @@ def _clamp_centre(c, dx, dy, dz, limit):
 
 
 @njit(cache=True, fastmath=FASTMATH, error_model="numpy")
-def _centre_cost(c, radii, unit, dx, dy, dz, wts, lam, tiny):
-    """sum w_i |normalize(C - x_i) - Y_i|^2 + lam |C|^2."""
+def _centre_cost(c0, c1, c2, radii, unit, dx, dy, dz, wts, lam, tiny):
+    """sum w_i |normalize(C - x_i) - Y_i|^2 + lam |C|^2 (C as scalars, so callers' C and
+    strided arrays share one specialisation)."""
+    c = (c0, c1, c2)
     e = lam * (c[0] * c[0] + c[1] * c[1] + c[2] * c[2])
     for i in range(radii.shape[0]):
         if wts[i] <= 0.0:
@@ -284,7 +287,7 @@ def _refine_centre(c, radii, unit, dx, dy, dz, wts, lam, limit, iters, work):
     returns the final cost."""
     tiny = 1e-12 * radii[radii.shape[0] - 1]
     _clamp_centre(c, dx, dy, dz, limit)
-    cost = _centre_cost(c, radii, unit, dx, dy, dz, wts, lam, tiny)
+    cost = _centre_cost(c[0], c[1], c[2], radii, unit, dx, dy, dz, wts, lam, tiny)
     mu = 1e-3
     h = work[2]
     g = work[3, :, 0]
@@ -318,7 +321,7 @@ def _refine_centre(c, radii, unit, dx, dy, dz, wts, lam, limit, iters, work):
                 mu *= 10.0
                 continue
             _clamp_centre(trial, dx, dy, dz, limit)
-            new = _centre_cost(trial, radii, unit, dx, dy, dz, wts, lam, tiny)
+            new = _centre_cost(trial[0], trial[1], trial[2], radii, unit, dx, dy, dz, wts, lam, tiny)
             if _improves(new, cost, trial, c):
                 cost = new
                 mu *= 0.3

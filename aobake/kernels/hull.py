@@ -113,7 +113,8 @@ def _hull_simplex(vertices, pool, w, t1, t2, big, low, tol, basis, lam, max_iter
     return False
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", parallel=True)
+# not parallel: a few ms per thousand directions, less than the parfor compile (~1 s)
+@njit(cache=True, fastmath=FASTMATH, error_model="numpy")
 def hull_distances(dirs, candidates, vertices, out):
     """Distance r0 from the origin along each unit row of ``dirs`` to the boundary of the
     convex hull of ``vertices``: max t such that t w lies in conv(vertices).
@@ -134,7 +135,7 @@ def hull_distances(dirs, candidates, vertices, out):
     low = -1e6 * (scale + 1.0)
     tol = 1e-12 * (scale + 1e-300)
     every = np.arange(nv)
-    for q in prange(dirs.shape[0]):
+    for q in range(dirs.shape[0]):
         w = dirs[q]
         t1x, t1y, t1z, t2x, t2y, t2z = warps.frame(w[0], w[1], w[2])
         t1 = (t1x, t1y, t1z)

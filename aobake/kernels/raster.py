@@ -181,7 +181,7 @@ def _render_point(vertices, faces, p, size, vface, vuv, cover, poly):
             n = _clip_to_face(tri, face, ax, ay, az, bx, by, bz)
             if n < 3:
                 continue
-            m = 0
+            m = np.int64(0)  # not a literal 0: typing would compile _fill_polygon for it too
             a, sg, ua, va = FACE_AXIS[face], FACE_SIGN[face], FACE_U[face], FACE_V[face]
             for k in range(n):
                 q = (ax[k], ay[k], az[k])
