@@ -278,6 +278,25 @@ def _method_options(method: str, given: dict) -> dict:
     return out
 
 
+def _bake_settings(method, color, channel, weld, up, meters_per_unit, fields, time_code, overlay, given) -> dict:
+    """The arguments of :func:`aobake.pipeline.bake_file` (and of a batch's
+    :class:`aobake.batch.Settings`) from the bake options; ``options``: the method's."""
+    if color and channel:
+        raise click.UsageError("--color and --channel both write the vertex colours; give one")
+    return dict(
+        method=method,
+        options=_method_options(method, given),
+        color=color,
+        channel=channel,
+        weld=weld,
+        up_axis=up,
+        meters_per_unit=meters_per_unit,
+        fields=tuple(fields),
+        time=time_code,
+        overlay=overlay,
+    )
+
+
 def bake_options(f):
     """--method, its options (--seed and --threads among them), --color, --up,
     --meters-per-unit, --field and --quiet: what `bake` takes and `batch` applies to every
@@ -370,24 +389,10 @@ def bake(mesh, output, method, color, channel, weld, up, meters_per_unit, overla
     from .pipeline import bake_file
     from .progress import make_progress
 
-    if color and channel:
-        raise click.UsageError("--color and --channel both write the vertex colours; give one")
+    settings = _bake_settings(method, color, channel, weld, up, meters_per_unit, fields, time_code, overlay, given)
+    options = settings.pop("options")
     with compile_notice(quiet):
-        report = bake_file(
-            mesh,
-            output,
-            method=method,
-            color=color,
-            channel=channel,
-            weld=weld,
-            up_axis=up,
-            meters_per_unit=meters_per_unit,
-            progress=make_progress(quiet),
-            fields=fields,
-            time=time_code,
-            overlay=overlay,
-            **_method_options(method, given),
-        )
+        report = bake_file(mesh, output, progress=make_progress(quiet), **settings, **options)
     if not quiet:
         click.echo(report.summary(), err=True)
 
@@ -457,24 +462,13 @@ def batch(
         raise click.UsageError(
             f"--split applies to --method {'/'.join(SPLITTABLE)} only: {method} couples all vertices"
         )
-    if color and channel:
-        raise click.UsageError("--color and --channel both write the vertex colours; give one")
+    settings = Settings(
+        **_bake_settings(method, color, channel, weld, up, meters_per_unit, fields, time_code, overlay, given)
+    )
     if split > 1 and weld:
         raise click.UsageError("--split bakes vertex ranges; a welded mesh is baked whole (drop --weld or --split)")
     if emit_commands and (scheduler or workers or split > 1):
         raise click.UsageError("--emit-commands bakes nothing: --scheduler, --workers and --split do not apply")
-    settings = Settings(
-        method=method,
-        options=_method_options(method, given),
-        color=color,
-        channel=channel,
-        weld=weld,
-        up_axis=up,
-        meters_per_unit=meters_per_unit,
-        fields=tuple(fields),
-        time=time_code,
-        overlay=overlay,
-    )
     if emit_commands:
         for line in emit(paths, outdir, formats=exts, settings=settings, force=force):
             click.echo(line)
