@@ -310,13 +310,10 @@ def _check_outputs(output, source, overlay: bool | None = None) -> list[Path]:
         raise ValueError("no output path given")
     usd_input = _is_usd(source)
     for path in outputs:
-        mode = usd_output_mode(path, usd_input, overlay)
+        usd_output_mode(path, usd_input, overlay)  # refuses an overlay it cannot write
         check_output_dir(path)
-        check_not_input(path, [source])
-        if mode == "overlay" and isinstance(source, (str, Path)) and Path(path).resolve() == Path(source).resolve():
-            raise OutputError(f"{Path(path).name}: is the USD source itself; write the overlay to a new file")
+        check_not_input(path, [source])  # an overlay over its own source included
     return outputs
-
 
 
 def _bake_range(surface: Surface, method: str, options: dict, progress, vertices, *, weld: bool = False) -> PartResult:
