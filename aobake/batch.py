@@ -76,6 +76,7 @@ class Settings:
     weld: bool = False
     time: float | None = None
     overlay: bool | None = None
+    ground: str | float | None = None
 
     def bake_kwargs(self, threads: int | None) -> dict:
         options = dict(self.options)
@@ -91,6 +92,7 @@ class Settings:
             weld=self.weld,
             time=self.time,
             overlay=self.overlay,
+            ground=self.ground,
             **options,
         )
 
@@ -229,6 +231,8 @@ def settings_key(settings: Settings, formats: Sequence[str]) -> tuple[dict, str]
         ],
         "formats": list(formats),
     }
+    if settings.ground is not None:  # only when given: earlier manifests keep their keys
+        described["ground"] = settings.ground
     text = json.dumps(described, sort_keys=True, default=str)
     return described, hashlib.sha256(text.encode()).hexdigest()
 
@@ -395,8 +399,8 @@ def part_task(job: Job, settings: Settings, part: tuple, slots: dict):
     from .pipeline import bake_part
 
     kw = settings.bake_kwargs(_worker_threads(slots))
-    for name in ("color", "up_axis", "meters_per_unit", "fields", "channel", "weld", "overlay"):
-        kw.pop(name)
+    for name in ("color", "meters_per_unit", "fields", "channel", "weld", "overlay"):
+        kw.pop(name)  # up_axis and ground stay: the plane is resolved along the up axis
     try:
         surface = load_mesh(job.source, time=kw.pop("time"))
         return bake_part(surface, parts=part, **kw), surface if part[0] == 0 else None
@@ -683,6 +687,8 @@ def bake_arguments(settings: Settings) -> list[str]:
         args.append("--overlay" if settings.overlay else "--no-overlay")
     if settings.up_axis:
         args += ["--up", settings.up_axis]
+    if settings.ground is not None:
+        args += ["--ground", settings.ground if settings.ground == "auto" else repr(float(settings.ground))]
     if settings.meters_per_unit:
         args += ["--meters-per-unit", repr(settings.meters_per_unit)]
     for item in settings.fields:

@@ -39,7 +39,9 @@ class AobakeGroup(click.Group):
             try:
                 result = super().invoke(ctx)
             except AobakeError as exc:
-                raise click.ClickException(str(exc)) from None
+                error = click.ClickException(str(exc))
+                error.exit_code = getattr(exc, "exit_code", 1)
+                raise error from None
             except progress.Terminated:
                 ctx.exit(128 + 15)
             except Exception:
@@ -110,6 +112,20 @@ class FieldSpec(click.ParamType):
                     self.fail(f"{value!r}: the placement must be finite numbers", param, ctx)
                 return Path(path), numbers
         return Path(str(value)), None
+
+
+class GroundSpec(click.ParamType):
+    """``auto`` or a finite height in mesh units (``--ground``)."""
+
+    name = "auto|HEIGHT"
+
+    def convert(self, value, param, ctx):
+        from .ground import parse_ground
+
+        try:
+            return parse_ground(value)
+        except ValueError as exc:
+            self.fail(str(exc), param, ctx)
 
 
 def compile_notice(quiet: bool):
@@ -278,7 +294,9 @@ def _method_options(method: str, given: dict) -> dict:
     return out
 
 
-def _bake_settings(method, color, channel, weld, up, meters_per_unit, fields, time_code, overlay, given) -> dict:
+def _bake_settings(
+    method, color, channel, weld, up, meters_per_unit, fields, time_code, overlay, given, ground=None
+) -> dict:
     """The arguments of :func:`aobake.pipeline.bake_file` (and of a batch's
     :class:`aobake.batch.Settings`) from the bake options; ``options``: the method's."""
     if color and channel:
@@ -294,6 +312,7 @@ def _bake_settings(method, color, channel, weld, up, meters_per_unit, fields, ti
         fields=tuple(fields),
         time=time_code,
         overlay=overlay,
+        ground=ground,
     )
 
 
@@ -363,6 +382,13 @@ _BAKE_OPTIONS = [
         "FIELD.npz@tx,ty,tz[,rx,ry,rz] (mesh units; degrees about x, then y, then z). "
         "Repeatable; each multiplies ao by its 1 - A_k.",
     ),
+    click.option(
+        "--ground",
+        type=GroundSpec(),
+        default=None,
+        help="An infinite occluding plane perpendicular to the up axis, at the lowest vertex (auto) "
+        "or at HEIGHT (mesh units); it receives nothing [default: none].",
+    ),
     click.option("--quiet", "-q", is_flag=True, help="No progress bar or summary on stderr."),
 ]
 
@@ -378,7 +404,9 @@ _BAKE_OPTIONS = [
     help="Output .ply, .usda, .usdc, .usd, .usdz, .gltf or .glb (repeat for several formats from one bake).",
 )
 @bake_options
-def bake(mesh, output, method, color, channel, weld, up, meters_per_unit, overlay, time_code, fields, quiet, **given):
+def bake(
+    mesh, output, method, color, channel, weld, up, meters_per_unit, overlay, time_code, fields, ground, quiet, **given
+):
     """Bake AO of MESH into OUTPUT as the per-vertex attribute `ao`.
 
     `ao` = 1 - A: 1 = fully open, 0 = fully occluded. MESH: PLY, OBJ, STL, OFF,
@@ -389,7 +417,9 @@ def bake(mesh, output, method, color, channel, weld, up, meters_per_unit, overla
     from .pipeline import bake_file
     from .progress import make_progress
 
-    settings = _bake_settings(method, color, channel, weld, up, meters_per_unit, fields, time_code, overlay, given)
+    settings = _bake_settings(
+        method, color, channel, weld, up, meters_per_unit, fields, time_code, overlay, given, ground
+    )
     options = settings.pop("options")
     with compile_notice(quiet):
         report = bake_file(mesh, output, progress=make_progress(quiet), **settings, **options)
@@ -436,7 +466,7 @@ def bake(mesh, output, method, color, channel, weld, up, meters_per_unit, overla
 @bake_options
 def batch(
     paths, outdir, formats, workers, scheduler, split, retries, force, emit_commands,
-    method, color, channel, weld, up, meters_per_unit, overlay, time_code, fields, quiet, **given,
+    method, color, channel, weld, up, meters_per_unit, overlay, time_code, fields, ground, quiet, **given,
 ):  # fmt: skip
     """Bake every mesh PATHS name into OUTDIR on a Dask cluster, skipping what is up to date.
 
@@ -463,7 +493,7 @@ def batch(
             f"--split applies to --method {'/'.join(SPLITTABLE)} only: {method} couples all vertices"
         )
     settings = Settings(
-        **_bake_settings(method, color, channel, weld, up, meters_per_unit, fields, time_code, overlay, given)
+        **_bake_settings(method, color, channel, weld, up, meters_per_unit, fields, time_code, overlay, given, ground)
     )
     if split > 1 and weld:
         raise click.UsageError("--split bakes vertex ranges; a welded mesh is baked whole (drop --weld or --split)")

@@ -102,16 +102,17 @@ def as_surface(mesh: Any, time: float | None = None) -> Surface:
     return mesh_from_trimesh(mesh)
 
 
-def _compute(surface: Surface, method: str, options: dict, progress: Progress | None, vertices=None):
+def _compute(surface: Surface, method: str, options: dict, progress: Progress | None, vertices=None, ground=None):
     """``(ao, n_rays, contacts)`` of ``method`` on ``vertices`` (None: all), a method's
-    numerical error named after the file."""
+    numerical error named after the file; ``ground``: a resolved :class:`aobake.ground.Ground`."""
     from .methods import run
 
+    extra = {} if ground is None else {"ground": ground}
     try:
         if vertices is None:  # the whole mesh: every method
-            result = run(method, surface, options, progress)
+            result = run(method, surface, options, progress, **extra)
         else:
-            result = run(method, surface, options, progress, vertices=vertices)
+            result = run(method, surface, options, progress, vertices=vertices, **extra)
     except NumericalError as exc:  # a method's own message, named after the file
         name = Path(surface.source).name
         if str(exc).startswith(f"{name}:"):
@@ -120,7 +121,9 @@ def _compute(surface: Surface, method: str, options: dict, progress: Progress | 
     return result.ao, result.n_rays, result.contacts
 
 
-def bake(mesh: Any, method: str = "embree", *, progress: Progress | None = None, **options) -> AOArray:
+def bake(
+    mesh: Any, method: str = "embree", *, progress: Progress | None = None, ground=None, **options
+) -> AOArray:
     """Per-vertex ambient occlusion of a mesh, as accessibility (1 = open).
 
     Parameters
@@ -132,6 +135,9 @@ def bake(mesh: Any, method: str = "embree", *, progress: Progress | None = None,
         and polygon form factors over a cluster tree, no rays
         (:func:`aobake.methods.bunnell.bunnell_ao`: ``passes``, ``theta``, ``near``, ...).
     progress : Progress, optional
+    ground : "auto", float or aobake.ground.Ground, optional
+        An infinite occluding plane under the mesh, perpendicular to its up axis (the
+        file's, else Y): at its lowest vertex ("auto") or at that height (mesh units).
     **options
         Passed to the method, e.g. ``n_rays``, ``measure``, ``max_distance``, ``bias``,
         ``seed``, ``tolerance``, ``threads`` for :func:`aobake.methods.embree.embree_ao`.
@@ -149,8 +155,19 @@ def bake(mesh: Any, method: str = "embree", *, progress: Progress | None = None,
     True
     """
     surface = as_surface(mesh)
-    ao, _, _ = _compute(surface, method, options, progress)
+    ao, _, _ = _compute(surface, method, options, progress, ground=_ground(surface, ground, None))
     return ao
+
+
+def _ground(surface: Surface, ground, up_axis: str | None):
+    """The :class:`aobake.ground.Ground` of ``ground`` (None, "auto", a height or a Ground)
+    along ``up_axis`` (else the input's, else Y); a plane above a vertex is an InputError."""
+    if ground is None:
+        return None
+    from .ground import resolve_ground
+
+    up = up_axis or surface.metadata.get("up_axis") or DEFAULT_UP_AXIS
+    return resolve_ground(ground, surface.positions, up, surface.source)
 
 
 def bake_file(
@@ -167,6 +184,7 @@ def bake_file(
     weld: bool = False,
     time: float | None = None,
     overlay: bool | None = None,
+    ground=None,
     **options,
 ) -> BakeReport:
     """Load ``source``, bake it once, write ``output`` (.ply, .usda, .usdc, .usd, .usdz,
@@ -195,6 +213,10 @@ def bake_file(
     an overlay layer over ``source`` unless ``overlay=False`` (a full flattened copy);
     ``.usdz`` is a flattened package (:func:`aobake.io.usd_output_mode`).
 
+    ``ground`` ("auto" or a height in mesh units): an infinite occluding plane
+    perpendicular to the up axis that every method counts and nothing receives on
+    (:mod:`aobake.ground`), recorded as ``ground=<height>`` in the outputs.
+
     Returns
     -------
     BakeReport
@@ -205,10 +227,11 @@ def bake_file(
     placed = _load_fields(fields)
     surface = as_surface(source, time)
     check_outputs(surface, outputs, channel)
-    part = _bake_range(surface, method, options, progress, None, weld=weld)
+    plane = _ground(surface, ground, up_axis)
+    part = _bake_range(surface, method, options, progress, None, weld=weld, ground=plane)
     return _write(
         source, surface, outputs, [part], method, options, placed, color, up_axis, meters_per_unit,
-        channel, weld, overlay,
+        channel, weld, overlay, plane,
     )  # fmt: skip
 
 
@@ -244,6 +267,8 @@ def bake_part(
     vertices: tuple[int, int] | None = None,
     parts: tuple[int, int] | None = None,
     progress: Progress | None = None,
+    ground=None,
+    up_axis: str | None = None,
     **options,
 ) -> PartResult:
     """Bake one vertex range of ``source`` (a path or a surface) against the whole mesh.
@@ -251,14 +276,15 @@ def bake_part(
     Give the range as ``vertices=(lo, hi)`` or as ``parts=(k, K)``: the k-th of K equal
     ranges (computed once the mesh is loaded). Only methods in
     :data:`aobake.methods.SPLITTABLE` bake ranges; a range of the whole mesh
-    (``vertices=None, parts=None``) works for every method.
+    (``vertices=None, parts=None``) works for every method. ``ground`` and ``up_axis``:
+    as for :func:`bake_file`.
     """
     surface = as_surface(source)
     if parts is not None:
         k, count = parts
         n = surface.n_vertices
         vertices = (n * k // count, n * (k + 1) // count)
-    return _bake_range(surface, method, options, progress, vertices)
+    return _bake_range(surface, method, options, progress, vertices, ground=_ground(surface, ground, up_axis))
 
 
 def write_parts(
@@ -275,6 +301,7 @@ def write_parts(
     channel: str | None = None,
     time: float | None = None,
     overlay: bool | None = None,
+    ground=None,
     **options,
 ) -> BakeReport:
     """Stitch the ranges of :func:`bake_part` in order and write them like :func:`bake_file`.
@@ -296,9 +323,10 @@ def write_parts(
     from .io import check_outputs
 
     check_outputs(surface, outputs, channel)
+    plane = _ground(surface, ground, up_axis)
     return _write(
         source, surface, outputs, parts, method, options, placed, color, up_axis, meters_per_unit,
-        channel, False, overlay,
+        channel, False, overlay, plane,
     )  # fmt: skip
 
 
@@ -316,7 +344,9 @@ def _check_outputs(output, source, overlay: bool | None = None) -> list[Path]:
     return outputs
 
 
-def _bake_range(surface: Surface, method: str, options: dict, progress, vertices, *, weld: bool = False) -> PartResult:
+def _bake_range(
+    surface: Surface, method: str, options: dict, progress, vertices, *, weld: bool = False, ground=None
+) -> PartResult:
     """Run ``method`` on ``vertices`` (None: all); compiling kernels is kept out of the time.
     ``weld``: bake the welded mesh (whole meshes only), results per input vertex."""
     with CompileWatch() as watch:
@@ -327,10 +357,10 @@ def _bake_range(surface: Surface, method: str, options: dict, progress, vertices
             if vertices is not None:
                 raise ValueError("a welded mesh is baked whole: weld takes no vertex range")
             welded, inverse = weld_vertices(surface)
-            ao, n_rays, contacts = _compute(welded, method, options, progress)
+            ao, n_rays, contacts = _compute(welded, method, options, progress, ground=ground)
             ao = np.asarray(ao)[inverse]
         else:
-            ao, n_rays, contacts = _compute(surface, method, options, progress, vertices)
+            ao, n_rays, contacts = _compute(surface, method, options, progress, vertices, ground)
         seconds = perf_counter() - t0 - watch.seconds
     lo, hi = (0, surface.n_vertices) if vertices is None else vertices
     return PartResult((lo, hi), ao, n_rays, contacts, seconds, watch.seconds)
@@ -338,7 +368,7 @@ def _bake_range(surface: Surface, method: str, options: dict, progress, vertices
 
 def _write(
     source, surface, outputs, parts, method, options, placed, color, up_axis, meters_per_unit,
-    channel=None, weld=False, overlay=None,
+    channel=None, weld=False, overlay=None, ground=None,
 ) -> BakeReport:  # fmt: skip
     """Fields applied, checks, every output written atomically (all or none)."""
     from .io import atomic_write, write_bake
@@ -361,6 +391,8 @@ def _write(
         custom["weld"] = True
     if channel is not None:
         custom["channel"] = channel
+    if ground is not None:
+        custom["ground"] = float(ground.height)
     # Stage metrics: what the caller says, else what the input said (USD, glTF), else
     # the documented defaults. An unauthored metersPerUnit would mean centimetres.
     meta = surface.metadata

@@ -88,6 +88,18 @@ def count_hits(ids, per, vertex_index, hits):
         hits[vertex_index[a]] += c
 
 
+@njit(cache=True, nogil=True)
+def ground_hits(org, dirs, axis, height, reach, ids):
+    """Mark (``ids[r] = 0``) the rays that hit the ground plane ``x[axis] = height`` within
+    ``reach`` (inf: unbounded): those going down whose origin, clamped to the plane (an
+    origin offset below it starts on it), is less than ``reach * -dir[axis]`` above it.
+    One test per ray; ``org``, ``height`` and ``reach`` in Embree's frame."""
+    for r in range(ids.shape[0]):
+        down = -np.float64(dirs[r, axis])
+        if down > 0.0 and max(np.float64(org[r, axis]) - height, 0.0) < reach * down:
+            ids[r] = 0
+
+
 @njit(cache=True)
 def vertex_keys(seed, n):
     """(n,) uint64 per-vertex keys: a hash of (seed, vertex index)."""

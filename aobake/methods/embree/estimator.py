@@ -20,6 +20,7 @@ from ..._types import AOArray, IndexArray
 from ...constants import ADAPTIVE_FIRST_ROUND, CHUNK_RAYS, MEASURE_CODES, Z95
 from ...contacts import contact_origins, ray_offsets
 from ...errors import NumericalError
+from ...ground import Ground
 from ...kernels import rays as _k
 from ...kernels import topology as _topo
 from ...mesh import Surface
@@ -121,7 +122,12 @@ def stratified_half_width(hits: np.ndarray, first_half_hits: np.ndarray, n: int)
 
 
 def embree_ao(
-    surface: Surface, options: EmbreeOptions | None = None, *, progress: Progress | None = None, **changes
+    surface: Surface,
+    options: EmbreeOptions | None = None,
+    *,
+    progress: Progress | None = None,
+    ground: Ground | None = None,
+    **changes,
 ) -> EmbreeAO:
     """Per-vertex ambient occlusion by Monte Carlo ray casting (the reference).
 
@@ -134,6 +140,9 @@ def embree_ao(
         ``threads`` (see :class:`EmbreeOptions`); keywords override them:
         ``embree_ao(surface, n_rays=64)``.
     progress : Progress, optional
+    ground : aobake.ground.Ground, optional
+        An infinite occluding plane (:mod:`aobake.ground`): one analytic test per ray,
+        no triangles added.
 
     Returns
     -------
@@ -150,7 +159,7 @@ def embree_ao(
     thread count and chunk size. With ``tolerance``, rays are cast in rounds that end on
     powers of two and a vertex stops once :func:`stratified_half_width` is below it.
     """
-    return estimate(surface, build(EmbreeOptions, options, **changes), progress)
+    return estimate(surface, build(EmbreeOptions, options, **changes), progress, ground=ground)
 
 
 def run(
@@ -158,9 +167,10 @@ def run(
     options: EmbreeOptions,
     progress: Progress | None = None,
     vertices: tuple[int, int] | None = None,
+    ground: Ground | None = None,
 ) -> MethodResult:
-    """The method interface (:mod:`aobake.methods`); ``vertices``: see :func:`estimate`."""
-    result = estimate(surface, options, progress, vertices=vertices)
+    """The method interface (:mod:`aobake.methods`); ``vertices``, ``ground``: see :func:`estimate`."""
+    result = estimate(surface, options, progress, vertices=vertices, ground=ground)
     return MethodResult(result.ao, result.n_rays, result.contacts)
 
 
@@ -173,6 +183,7 @@ def estimate(
     stratified: bool = True,
     contact_fix: bool = True,
     vertices: tuple[int, int] | None = None,
+    ground: Ground | None = None,
 ) -> EmbreeAO:
     """:func:`embree_ao` with the knobs tests and the bench turn: ``chunk_rays`` rays per
     Embree call at most (memory; no effect on the result), ``stratified=False`` plain
@@ -182,7 +193,10 @@ def estimate(
     ``vertices=(lo, hi)``: trace only vertices lo..hi-1 against the whole scene and
     return their results alone (``ao`` and ``rays`` of length hi - lo). Every ray is a
     pure function of (seed, vertex, sample), so the pieces of a mesh, concatenated,
-    equal the whole bake bit for bit (``aobake batch --split``)."""
+    equal the whole bake bit for bit (``aobake batch --split``).
+
+    ``ground``: a ray also counts as a hit where it meets the plane within its reach
+    (:func:`aobake.kernels.rays.ground_hits`); without it the result is unchanged."""
     t0 = time.perf_counter()
     n_rays = options.n_rays
     threads = max(1, int(options.threads or os.cpu_count() or 1))
@@ -204,6 +218,10 @@ def estimate(
     mode = MEASURE_CODES[options.measure] + (0 if stratified else 2)
     tfar = None if options.max_distance is None else float(options.max_distance)
     tolerance = options.tolerance
+    if ground is not None:  # the plane in Embree's frame (recentred, divided by the scale)
+        g_axis = int(ground.axis)
+        g_height = (float(ground.height) - float(tracer.center[g_axis])) / tracer.scale
+        g_reach = math.inf if tfar is None else tfar / tracer.scale
 
     hits = np.zeros(n, dtype=np.int64)
     cast = np.zeros(n, dtype=np.int64)
@@ -219,6 +237,9 @@ def estimate(
         dirs = np.zeros((k, 3), dtype=np.float32)
         _k.generate_rays(origins, normals, keys, vertex_index, j0, j1, mode, org, dirs)
         ids = tracer.occluded(org, dirs, tfar)
+        if ground is not None:
+            ids = np.array(ids, dtype=np.int32)  # writable
+            _k.ground_hits(org, dirs, g_axis, g_height, g_reach, ids)
         with lock:  # a vertex's rays may span chunks: integer sums, any order
             _k.count_hits(ids, j1 - j0, vertex_index, hits)
         return k
