@@ -13,14 +13,31 @@ from __future__ import annotations
 
 import numpy as np
 
-from common import DATA_DIR, fmt_s, interleaved, load_surface, print_table, rmse
-
 from aobake.ground import resolve_ground
 from aobake.mesh import surface_from_arrays
 from aobake.methods.bunnell import bunnell_ao
 from aobake.methods.embree import embree_ao
 
-SCENES = (("bunny.ply", "Y"), ("sphere_on_ground.ply", "Z"), ("box_stack.ply", "Y"))
+from common import DATA_DIR, fmt_s, interleaved, load_surface, print_table, rmse
+
+SCENES = (
+    ("bunny.ply", "Y"),
+    ("sphere_on_ground.ply", "Z"),
+    ("box_stack.ply", "Y"),
+    ("bunny.ply x3", "Y"),
+)
+
+
+def scene(name: str):
+    """A bundled mesh; "NAME xK": loop-subdivided K times (the timing scene: 117k vertices)."""
+    file, _, times = name.partition(" x")
+    s = load_surface(DATA_DIR / file)
+    if not times:
+        return s
+    import trimesh
+
+    v, f = trimesh.remesh.subdivide_loop(s.positions, s.faces, iterations=int(times))
+    return surface_from_arrays(v, f)
 
 
 def with_floor(surface, ground, radii: float = 20.0):
@@ -49,25 +66,28 @@ def with_floor(surface, ground, radii: float = 20.0):
     )
 
 
+def contenders(s, g, floor) -> dict:
+    """What is timed on one scene, round-robin."""
+    n = s.n_vertices
+    return {
+        "embree": lambda: embree_ao(s, n_rays=256).ao,
+        "embree ground": lambda: embree_ao(s, n_rays=256, ground=g).ao,
+        "embree 2 triangles": lambda: embree_ao(floor, n_rays=256).ao[:n],
+        "bunnell": lambda: bunnell_ao(s),
+        "bunnell ground": lambda: bunnell_ao(s, ground=g),
+    }
+
+
 def main() -> None:
     rows = []
     for name, up in SCENES:
-        s = load_surface(DATA_DIR / name)
+        s = scene(name)
         g = resolve_ground("auto", s.positions, up)
         floor = with_floor(s, g)
         n = s.n_vertices
         reference = embree_ao(s, n_rays=1024, seed=1, ground=g).ao
         plain_reference = embree_ao(s, n_rays=1024, seed=1).ao
-        t = interleaved(
-            {
-                "embree": lambda: embree_ao(s, n_rays=256).ao,
-                "embree ground": lambda: embree_ao(s, n_rays=256, ground=g).ao,
-                "embree 2 triangles": lambda: embree_ao(floor, n_rays=256).ao[:n],
-                "bunnell": lambda: bunnell_ao(s),
-                "bunnell ground": lambda: bunnell_ao(s, ground=g),
-            },
-            repeats=3,
-        )
+        t = interleaved(contenders(s, g, floor), repeats=3)
         rows.append(
             [
                 f"{name} ({n}, up {up})",

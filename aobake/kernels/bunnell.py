@@ -258,6 +258,7 @@ def direction_excess(dirs, side):
 FILL_NONE = 0  # no receiver has a slot
 FILL_KEEP = 1  # pass 1: keep them (store row slot[i])
 FILL_GIVE = 2  # a later pass: give back part of what it removes (:func:`refill`)
+FILL_KEEP_IF = 3  # keep them where the receiver bins anyway (the ground plane's settling)
 
 
 @njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
@@ -291,7 +292,7 @@ def settle_fill(dirs, store, row, mode):
     :func:`refill` back on each side."""
     if row < 0:
         return 0.0, 0.0
-    if mode == FILL_KEEP:
+    if mode == FILL_KEEP or mode == FILL_KEEP_IF:
         keep_bins(dirs, store, row)
         return 0.0, 0.0
     return refill(dirs, store, row, 0), refill(dirs, store, row, 1)
