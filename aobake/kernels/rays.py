@@ -89,15 +89,22 @@ def count_hits(ids, per, vertex_index, hits):
 
 
 @njit(cache=True, nogil=True)
-def ground_hits(org, dirs, axis, height, reach, ids):
-    """Mark (``ids[r] = 0``) the rays that hit the ground plane ``x[axis] = height`` within
+def ground_rays(org, dirs, axis, height, reach, hit):
+    """``hit[r] = 1`` for the rays that meet the ground plane ``x[axis] = height`` within
     ``reach`` (inf: unbounded): those going down whose origin, clamped to the plane (an
-    origin offset below it starts on it), is less than ``reach * -dir[axis]`` above it.
-    One test per ray; ``org``, ``height`` and ``reach`` in Embree's frame."""
-    for r in range(ids.shape[0]):
+    origin offset below it starts on it), is less than ``reach * -dir[axis]`` above it;
+    else 0. One test per ray (``org``, ``height``, ``reach`` in Embree's frame, where the
+    mesh lies within [-1, 1]^3). A hit ray's origin moves to ``3 dir``, outside that box
+    and going away from it, so that Embree rejects it at its root box instead of
+    traversing the mesh for an answer the plane already gave."""
+    for r in range(hit.shape[0]):
         down = -np.float64(dirs[r, axis])
         if down > 0.0 and max(np.float64(org[r, axis]) - height, 0.0) < reach * down:
-            ids[r] = 0
+            hit[r] = 1
+            for k in range(3):
+                org[r, k] = np.float32(3.0) * dirs[r, k]
+        else:
+            hit[r] = 0
 
 
 @njit(cache=True)

@@ -196,7 +196,7 @@ def estimate(
     equal the whole bake bit for bit (``aobake batch --split``).
 
     ``ground``: a ray also counts as a hit where it meets the plane within its reach
-    (:func:`aobake.kernels.rays.ground_hits`); without it the result is unchanged."""
+    (:func:`aobake.kernels.rays.ground_rays`); without it the result is unchanged."""
     t0 = time.perf_counter()
     n_rays = options.n_rays
     threads = max(1, int(options.threads or os.cpu_count() or 1))
@@ -236,10 +236,12 @@ def estimate(
         org = np.zeros((k, 3), dtype=np.float32)
         dirs = np.zeros((k, 3), dtype=np.float32)
         _k.generate_rays(origins, normals, keys, vertex_index, j0, j1, mode, org, dirs)
+        if ground is not None:  # the plane first: its hits are not traced
+            on_plane = np.empty(k, dtype=np.uint8)
+            _k.ground_rays(org, dirs, g_axis, g_height, g_reach, on_plane)
         ids = tracer.occluded(org, dirs, tfar)
         if ground is not None:
-            ids = np.array(ids, dtype=np.int32)  # writable
-            _k.ground_hits(org, dirs, g_axis, g_height, g_reach, ids)
+            ids = np.where(on_plane != 0, 0, ids)
         with lock:  # a vertex's rays may span chunks: integer sums, any order
             _k.count_hits(ids, j1 - j0, vertex_index, hits)
         return k
