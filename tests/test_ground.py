@@ -268,3 +268,20 @@ def test_batch_passes_the_ground_on(tmp_path):
     assert described["ground"] == "auto" and key != settings_key(Settings(ground=0.0), ["ply"])[1]
     lines = list(emit_commands([str(src)], tmp_path / "out", formats=("ply",), settings=Settings(ground=-0.5)))
     assert len(lines) == 1 and "--ground -0.5" in lines[0]
+
+
+def test_fields_multiply_into_the_bake_with_its_ground(tmp_path):
+    """A field is one more occluder: its 1 - A_k multiplies the mesh's own AO, which
+    holds the plane (a convex receiver's own AO is the plane's alone)."""
+    from aobake.io import read_bake
+    from aobake.methods.fields import fit_field
+
+    occluder = _sphere(0.0, subdivisions=1)
+    f = fit_field(occluder, resolution=4, radial_samples=8)
+    src = _ply(tmp_path, _sphere(1.0))
+    placed = [(f, (2.2, 1.0, 0.0))]
+    for name, kw in (("g", {"ground": "auto"}), ("f", {"fields": placed}), ("gf", {"ground": "auto", "fields": placed})):
+        bake_file(src, tmp_path / f"{name}.ply", n_rays=64, **kw)
+    g, fo, gf = (read_bake(tmp_path / f"{n}.ply") for n in ("g", "f", "gf"))
+    assert (fo < 1).any() and (g < 1).any()
+    np.testing.assert_allclose(gf, g * fo, atol=1e-6)  # the sphere's own AO without either is 1
