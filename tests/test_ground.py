@@ -285,3 +285,41 @@ def test_fields_multiply_into_the_bake_with_its_ground(tmp_path):
     g, fo, gf = (read_bake(tmp_path / f"{n}.ply") for n in ("g", "f", "gf"))
     assert (fo < 1).any() and (g < 1).any()
     np.testing.assert_allclose(gf, g * fo, atol=1e-6)  # the sphere's own AO without either is 1
+
+
+def test_bunnell_ground_in_every_pass_path_and_measure():
+    """The exact sum, later passes (bins kept by every receiver), the uniform measure and
+    the plain sums (no bins: the plane added) all count the plane."""
+    from aobake.methods.bunnell import estimate
+    from aobake.methods.bunnell.options import BunnellOptions
+
+    s = _bunny()
+    g = resolve_ground("auto", s.positions, "Y")
+    one = bunnell_ao(s, ground=g)
+    two = bunnell_ao(s, ground=g, passes=2)
+    assert np.sqrt(np.mean((two - one) ** 2)) < 0.003
+    # every cluster opened: the exact sum's terms; the exact sum bins every receiver, the
+    # tree pass only those whose sums fill a bin (the others take P (1 - T))
+    tree = bunnell_ao(s, ground=g, theta=1e6)
+    exact = estimate(s, BunnellOptions(), exact=True, ground=g)
+    assert np.sqrt(np.mean((tree - exact) ** 2)) < 0.004
+    ref = embree_ao(s, n_rays=1024, ground=g, measure="uniform").ao
+    got = bunnell_ao(s, ground=g, measure="uniform")
+    plain_err = np.sqrt(np.mean((bunnell_ao(s, measure="uniform") - embree_ao(s, n_rays=1024, measure="uniform").ao) ** 2))
+    assert np.sqrt(np.mean((got - ref) ** 2)) < plain_err + 0.01
+    ref = embree_ao(s, n_rays=1024, ground=g).ao
+    plain = bunnell_ao(s, ground=g, directional=False)
+    assert np.sqrt(np.mean((plain - ref) ** 2)) < 0.03
+
+
+def test_a_vertex_without_a_normal_sees_half_the_sphere_blocked():
+    """An unreferenced vertex (no normal) samples the whole sphere: the plane is half of it."""
+    s = _sphere(1.0, subdivisions=1)
+    lone = np.vstack([s.positions, [[5.0, 0.5, 0.0]]])
+    t = surface_from_arrays(lone, s.faces)
+    assert not t.normals[-1].any()
+    g = resolve_ground("auto", t.positions, "Y")
+    e = embree_ao(t, n_rays=1024, ground=g).ao[-1]
+    b = bunnell_ao(t, ground=g)[-1]
+    assert e == pytest.approx(0.5, abs=0.03)
+    assert b == pytest.approx(0.5, abs=0.03)

@@ -437,9 +437,12 @@ def _with_plane(total: FloatArray, plane, keep, elements: DiskElements) -> Float
     below one bin's measure) gets ``P (1 - T)``, T its side's sum, P the plane's
     occlusion (bunny: 0.0069 against 0.0090 for ``max(P - T, 0)`` and 0.0067 when every
     receiver bins, at a third of the extra time); one without a normal (or not binning
-    at all: ``--no-directional``, the uniform measure) gets P."""
+    at all: ``--no-directional``, the uniform measure) the same ``P (1 - T)`` (bunny,
+    uniform measure: 0.0325 against 0.0634 for P and 0.0752 for ``max(P - T, 0)``)."""
     axis, cos_reach, plane_total = plane
-    out = total + np.asarray(plane_total)[:, None]
+    # no bins to settle in: where the sums' occlusion lies is unknown, taken independent
+    # of the plane's directions
+    out = total + np.asarray(plane_total)[:, None] * (1.0 - np.minimum(total, 1.0))
     if keep is None:
         return out
     normals = np.ascontiguousarray(elements.normals, dtype=np.float64)
@@ -447,10 +450,7 @@ def _with_plane(total: FloatArray, plane, keep, elements: DiskElements) -> Float
     plane_total = np.asarray(plane_total, dtype=np.float64)
     rows = keep.store[keep.slot]  # (n, 2, 2 SECTORS): pass 1's bins, both sides
     binned_rows = has_normal & ~np.isnan(rows[:, 0, 0])
-    below = has_normal & ~binned_rows
-    # a receiver whose sums stayed below one bin (it did not bin): where its little
-    # occlusion lies is unknown; taken independent of the plane's directions
-    out[below] = total[below] + plane_total[below, None] * (1.0 - np.minimum(total[below], 1.0))
+    # a receiver whose sums stayed below one bin (it did not bin) keeps P (1 - T)
     idx = np.flatnonzero(binned_rows & (plane_total > 0.0))
     if idx.size == 0:
         return out
