@@ -103,8 +103,8 @@ def as_surface(mesh: Any, time: float | None = None) -> Surface:
 
 
 def _compute(surface: Surface, method: str, options: dict, progress: Progress | None, vertices=None):
-    """``(ao, n_rays, contacts)`` of ``method`` on ``vertices`` (None: all), a method's
-    numerical error named after the file."""
+    """``(ao, n_rays, contacts, attributes)`` of ``method`` on ``vertices`` (None: all), a
+    method's numerical error named after the file."""
     from .methods import run
 
     try:
@@ -117,7 +117,7 @@ def _compute(surface: Surface, method: str, options: dict, progress: Progress | 
         if str(exc).startswith(f"{name}:"):
             raise
         raise NumericalError(f"{name}: {exc}") from None
-    return result.ao, result.n_rays, result.contacts
+    return result.ao, result.n_rays, result.contacts, result.attributes or {}
 
 
 def bake(mesh: Any, method: str = "embree", *, progress: Progress | None = None, **options) -> AOArray:
@@ -149,7 +149,7 @@ def bake(mesh: Any, method: str = "embree", *, progress: Progress | None = None,
     True
     """
     surface = as_surface(mesh)
-    ao, _, _ = _compute(surface, method, options, progress)
+    ao, *_ = _compute(surface, method, options, progress)
     return ao
 
 
@@ -227,6 +227,8 @@ class PartResult:
         Compute time of the range (scene build included, compiling kernels not).
     compile_seconds : float
         Time spent compiling kernels (a cold numba cache), first run only.
+    attributes : dict of str to array
+        Extra per-vertex results of the range (``bentNormal``), written beside ``ao``.
     """
 
     vertices: tuple
@@ -235,6 +237,7 @@ class PartResult:
     contacts: int
     seconds: float
     compile_seconds: float = 0.0
+    attributes: dict = field(default_factory=dict)
 
 
 def bake_part(
@@ -327,13 +330,14 @@ def _bake_range(surface: Surface, method: str, options: dict, progress, vertices
             if vertices is not None:
                 raise ValueError("a welded mesh is baked whole: weld takes no vertex range")
             welded, inverse = weld_vertices(surface)
-            ao, n_rays, contacts = _compute(welded, method, options, progress)
+            ao, n_rays, contacts, attributes = _compute(welded, method, options, progress)
             ao = np.asarray(ao)[inverse]
+            attributes = {k: np.asarray(v)[inverse] for k, v in attributes.items()}
         else:
-            ao, n_rays, contacts = _compute(surface, method, options, progress, vertices)
+            ao, n_rays, contacts, attributes = _compute(surface, method, options, progress, vertices)
         seconds = perf_counter() - t0 - watch.seconds
     lo, hi = (0, surface.n_vertices) if vertices is None else vertices
-    return PartResult((lo, hi), ao, n_rays, contacts, seconds, watch.seconds)
+    return PartResult((lo, hi), ao, n_rays, contacts, seconds, watch.seconds, attributes)
 
 
 def _write(
@@ -344,6 +348,7 @@ def _write(
     from .io import atomic_write, write_bake
 
     ao = parts[0].ao if len(parts) == 1 else np.concatenate([p.ao for p in parts])
+    attributes = {k: np.concatenate([p.attributes[k] for p in parts]) for k in parts[0].attributes}
     seconds = sum(p.seconds for p in parts)
     skipped: tuple = ()
     with CompileWatch() as watch:
@@ -378,6 +383,7 @@ def _write(
                 up_axis=up_axis or meta.get("up_axis") or DEFAULT_UP_AXIS,
                 meters_per_unit=meters_per_unit or meta.get("meters_per_unit") or DEFAULT_METERS_PER_UNIT,
                 overlay=overlay,
+                attributes=attributes,
             )
     return BakeReport(
         source=Path(str(source)).name,
@@ -533,7 +539,7 @@ def sweep_file(
         options.setdefault("threads", threads)
         if method == "embree":
             options.setdefault("seed", seed)
-        ao, rays, _ = _compute(surface, method, options, None)
+        ao, rays, *_ = _compute(surface, method, options, None)
         return ao, rays
 
     grid = sweep.default_grid(methods or METHODS)
