@@ -389,6 +389,21 @@ def _compute_selected(surface: Surface, method: str, options: dict, progress, ve
     return full, n_rays, contacts, padded
 
 
+def _stitched_attributes(surface: Surface, parts) -> dict:
+    """The parts' extra attributes concatenated; a range that baked no receiver (and so
+    has none) holds what vertices not baked hold (:func:`aobake.selection.unselected_values`)."""
+    from .selection import unselected_values
+
+    out = {}
+    for name in dict.fromkeys(k for p in parts for k in p.attributes):
+        template = next(p.attributes[name] for p in parts if name in p.attributes)
+        fill = unselected_values(name, surface, template)
+        out[name] = np.concatenate(
+            [p.attributes[name] if name in p.attributes else fill[p.vertices[0] : p.vertices[1]] for p in parts]
+        )
+    return out
+
+
 def _write(
     source, surface, outputs, parts, method, options, placed, color, up_axis, meters_per_unit,
     channel=None, weld=False, overlay=None, selection=None,
@@ -397,7 +412,7 @@ def _write(
     from .io import atomic_write, write_bake
 
     ao = parts[0].ao if len(parts) == 1 else np.concatenate([p.ao for p in parts])
-    attributes = {k: np.concatenate([p.attributes[k] for p in parts]) for k in parts[0].attributes}
+    attributes = _stitched_attributes(surface, parts)
     seconds = sum(p.seconds for p in parts)
     skipped: tuple = ()
     with CompileWatch() as watch:

@@ -149,3 +149,9 @@ def test_split_weld_and_receivers_carry_bent_normals(tmp_path):
     got, whole = bent(tmp_path / "ball.ply"), bent(tmp_path / "whole.ply")
     np.testing.assert_array_equal(got[: floor.vertex_stop], loaded.normals[: floor.vertex_stop].astype(np.float32))
     np.testing.assert_array_equal(got[floor.vertex_stop :], whole[floor.vertex_stop :])
+    # split, the first range holding no receiver at all
+    parts = [bake_part(source, vertices=r, receivers=("/Root/ball",), **kw)
+             for r in ((0, floor.vertex_stop), (floor.vertex_stop, loaded.n_vertices))]  # fmt: skip
+    assert parts[0].attributes == {}
+    write_parts(source, tmp_path / "ball_split.ply", parts, receivers=("/Root/ball",), **kw)
+    np.testing.assert_array_equal(bent(tmp_path / "ball_split.ply"), got)
