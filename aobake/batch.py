@@ -76,6 +76,8 @@ class Settings:
     weld: bool = False
     time: float | None = None
     overlay: bool | None = None
+    receivers: tuple = ()
+    occluders: tuple = ()
 
     def bake_kwargs(self, threads: int | None) -> dict:
         options = dict(self.options)
@@ -91,6 +93,8 @@ class Settings:
             weld=self.weld,
             time=self.time,
             overlay=self.overlay,
+            receivers=self.receivers,
+            occluders=self.occluders,
             **options,
         )
 
@@ -223,6 +227,7 @@ def settings_key(settings: Settings, formats: Sequence[str]) -> tuple[dict, str]
         "weld": settings.weld,
         "time": settings.time,
         "overlay": settings.overlay,
+        **{key: list(getattr(settings, key)) for key in ("receivers", "occluders") if getattr(settings, key)},
         "fields": [
             {"file": Path(f).name, "sha256": file_hash(f), "placement": None if p is None else list(p)}
             for f, p in (_field_parts(item) for item in settings.fields)
@@ -681,6 +686,9 @@ def bake_arguments(settings: Settings) -> list[str]:
         args += ["--time", repr(settings.time)]
     if settings.overlay is not None:
         args.append("--overlay" if settings.overlay else "--no-overlay")
+    for key in ("receivers", "occluders"):
+        for pattern in getattr(settings, key):
+            args += [f"--{key}", pattern]
     if settings.up_axis:
         args += ["--up", settings.up_axis]
     if settings.meters_per_unit:

@@ -283,7 +283,9 @@ def _bake_settings(method, color, channel, weld, up, meters_per_unit, fields, ti
     :class:`aobake.batch.Settings`) from the bake options; ``options``: the method's."""
     if color and channel:
         raise click.UsageError("--color and --channel both write the vertex colours; give one")
+    selection = {key: tuple(given.pop(key, None) or ()) for key in ("receivers", "occluders")}
     return dict(
+        **{key: patterns for key, patterns in selection.items() if patterns},
         method=method,
         options=_method_options(method, given),
         color=color,
@@ -362,6 +364,20 @@ _BAKE_OPTIONS = [
         help="An AO field (from `aobake field`) of a rigid occluder, optionally placed: "
         "FIELD.npz@tx,ty,tz[,rx,ry,rz] (mesh units; degrees about x, then y, then z). "
         "Repeatable; each multiplies ao by its 1 - A_k.",
+    ),
+    click.option(
+        "--receivers",
+        multiple=True,
+        metavar="PATTERN",
+        help="Bake only the parts this glob matches (USD prim path, else glTF node/OBJ object/file name); "
+        "the others keep the input's ao, else 1. Repeatable.",
+    ),
+    click.option(
+        "--occluders",
+        multiple=True,
+        metavar="PATTERN",
+        help="Only the parts this glob matches cast occlusion; the others are left out of the scene "
+        "(still written). Repeatable.",
     ),
     click.option("--quiet", "-q", is_flag=True, help="No progress bar or summary on stderr."),
 ]

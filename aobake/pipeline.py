@@ -103,8 +103,8 @@ def as_surface(mesh: Any, time: float | None = None) -> Surface:
 
 
 def _compute(surface: Surface, method: str, options: dict, progress: Progress | None, vertices=None):
-    """``(ao, n_rays, contacts)`` of ``method`` on ``vertices`` (None: all), a method's
-    numerical error named after the file."""
+    """``(ao, n_rays, contacts, attributes)`` of ``method`` on ``vertices`` (None: all), a
+    method's numerical error named after the file."""
     from .methods import run
 
     try:
@@ -117,7 +117,7 @@ def _compute(surface: Surface, method: str, options: dict, progress: Progress | 
         if str(exc).startswith(f"{name}:"):
             raise
         raise NumericalError(f"{name}: {exc}") from None
-    return result.ao, result.n_rays, result.contacts
+    return result.ao, result.n_rays, result.contacts, result.attributes or {}
 
 
 def bake(mesh: Any, method: str = "embree", *, progress: Progress | None = None, **options) -> AOArray:
@@ -149,7 +149,7 @@ def bake(mesh: Any, method: str = "embree", *, progress: Progress | None = None,
     True
     """
     surface = as_surface(mesh)
-    ao, _, _ = _compute(surface, method, options, progress)
+    ao, *_ = _compute(surface, method, options, progress)
     return ao
 
 
@@ -167,6 +167,8 @@ def bake_file(
     weld: bool = False,
     time: float | None = None,
     overlay: bool | None = None,
+    receivers: Sequence[str] = (),
+    occluders: Sequence[str] = (),
     **options,
 ) -> BakeReport:
     """Load ``source``, bake it once, write ``output`` (.ply, .usda, .usdc, .usd, .usdz,
@@ -195,20 +197,26 @@ def bake_file(
     an overlay layer over ``source`` unless ``overlay=False`` (a full flattened copy);
     ``.usdz`` is a flattened package (:func:`aobake.io.usd_output_mode`).
 
+    ``receivers`` / ``occluders``: glob patterns over the parts (USD prim paths, else
+    names; :mod:`aobake.selection`). Occluders not selected are left out of the scene
+    (still written); receivers not selected keep the input's ``ao``, else 1.0.
+
     Returns
     -------
     BakeReport
     """
     from .io import check_outputs
+    from .selection import Selection
 
     outputs = _check_outputs(output, source, overlay)
     placed = _load_fields(fields)
     surface = as_surface(source, time)
     check_outputs(surface, outputs, channel)
-    part = _bake_range(surface, method, options, progress, None, weld=weld)
+    selection = Selection.of(surface, receivers, occluders)
+    part = _bake_range(surface, method, options, progress, None, weld=weld, selection=selection)
     return _write(
         source, surface, outputs, [part], method, options, placed, color, up_axis, meters_per_unit,
-        channel, weld, overlay,
+        channel, weld, overlay, selection,
     )  # fmt: skip
 
 
@@ -227,6 +235,8 @@ class PartResult:
         Compute time of the range (scene build included, compiling kernels not).
     compile_seconds : float
         Time spent compiling kernels (a cold numba cache), first run only.
+    attributes : dict of str to array
+        Extra per-vertex results of the range (``bentNormal``), written beside ``ao``.
     """
 
     vertices: tuple
@@ -235,6 +245,7 @@ class PartResult:
     contacts: int
     seconds: float
     compile_seconds: float = 0.0
+    attributes: dict = field(default_factory=dict)
 
 
 def bake_part(
@@ -244,6 +255,8 @@ def bake_part(
     vertices: tuple[int, int] | None = None,
     parts: tuple[int, int] | None = None,
     progress: Progress | None = None,
+    receivers: Sequence[str] = (),
+    occluders: Sequence[str] = (),
     **options,
 ) -> PartResult:
     """Bake one vertex range of ``source`` (a path or a surface) against the whole mesh.
@@ -251,14 +264,18 @@ def bake_part(
     Give the range as ``vertices=(lo, hi)`` or as ``parts=(k, K)``: the k-th of K equal
     ranges (computed once the mesh is loaded). Only methods in
     :data:`aobake.methods.SPLITTABLE` bake ranges; a range of the whole mesh
-    (``vertices=None, parts=None``) works for every method.
+    (``vertices=None, parts=None``) works for every method. ``receivers``,
+    ``occluders``: as for :func:`bake_file` (give :func:`write_parts` the same).
     """
+    from .selection import Selection
+
     surface = as_surface(source)
     if parts is not None:
         k, count = parts
         n = surface.n_vertices
         vertices = (n * k // count, n * (k + 1) // count)
-    return _bake_range(surface, method, options, progress, vertices)
+    selection = Selection.of(surface, receivers, occluders)
+    return _bake_range(surface, method, options, progress, vertices, selection=selection)
 
 
 def write_parts(
@@ -275,6 +292,8 @@ def write_parts(
     channel: str | None = None,
     time: float | None = None,
     overlay: bool | None = None,
+    receivers: Sequence[str] = (),
+    occluders: Sequence[str] = (),
     **options,
 ) -> BakeReport:
     """Stitch the ranges of :func:`bake_part` in order and write them like :func:`bake_file`.
@@ -294,11 +313,13 @@ def write_parts(
     if expected != surface.n_vertices:
         raise ValueError(f"parts cover {expected} of {surface.n_vertices} vertices")
     from .io import check_outputs
+    from .selection import Selection
 
     check_outputs(surface, outputs, channel)
+    selection = Selection.of(surface, receivers, occluders)
     return _write(
         source, surface, outputs, parts, method, options, placed, color, up_axis, meters_per_unit,
-        channel, False, overlay,
+        channel, False, overlay, selection,
     )  # fmt: skip
 
 
@@ -316,9 +337,12 @@ def _check_outputs(output, source, overlay: bool | None = None) -> list[Path]:
     return outputs
 
 
-def _bake_range(surface: Surface, method: str, options: dict, progress, vertices, *, weld: bool = False) -> PartResult:
+def _bake_range(
+    surface: Surface, method: str, options: dict, progress, vertices, *, weld: bool = False, selection=None
+) -> PartResult:
     """Run ``method`` on ``vertices`` (None: all); compiling kernels is kept out of the time.
-    ``weld``: bake the welded mesh (whole meshes only), results per input vertex."""
+    ``weld``: bake the welded mesh (whole meshes only), results per input vertex.
+    ``selection``: trace only its occluders, from its receivers (:func:`_compute_selected`)."""
     with CompileWatch() as watch:
         t0 = perf_counter()
         if weld:
@@ -327,23 +351,53 @@ def _bake_range(surface: Surface, method: str, options: dict, progress, vertices
             if vertices is not None:
                 raise ValueError("a welded mesh is baked whole: weld takes no vertex range")
             welded, inverse = weld_vertices(surface)
-            ao, n_rays, contacts = _compute(welded, method, options, progress)
+            scene = welded if selection is None else selection.scene(welded)
+            ao, n_rays, contacts, attributes = _compute(scene, method, options, progress)
             ao = np.asarray(ao)[inverse]
+            attributes = {k: np.asarray(v)[inverse] for k, v in attributes.items()}
+        elif selection is not None:
+            ao, n_rays, contacts, attributes = _compute_selected(surface, method, options, progress, vertices, selection)
         else:
-            ao, n_rays, contacts = _compute(surface, method, options, progress, vertices)
+            ao, n_rays, contacts, attributes = _compute(surface, method, options, progress, vertices)
         seconds = perf_counter() - t0 - watch.seconds
     lo, hi = (0, surface.n_vertices) if vertices is None else vertices
-    return PartResult((lo, hi), ao, n_rays, contacts, seconds, watch.seconds)
+    return PartResult((lo, hi), ao, n_rays, contacts, seconds, watch.seconds, attributes)
+
+
+def _compute_selected(surface: Surface, method: str, options: dict, progress, vertices, selection):
+    """:func:`_compute` on the occluders' scene; a method that bakes vertex ranges bakes
+    only the span of receiving vertices in ``vertices`` (the rest is replaced in
+    :func:`_write`)."""
+    from .methods import SPLITTABLE
+    from .selection import unselected_values
+
+    scene = selection.scene(surface)
+    if method not in SPLITTABLE:
+        return _compute(scene, method, options, progress, vertices)
+    lo, hi = (0, surface.n_vertices) if vertices is None else vertices
+    found = np.flatnonzero(selection.receiving(surface)[lo:hi])
+    if found.size == 0:
+        return np.ones(hi - lo), 0, 0, {}
+    a, b = lo + int(found[0]), lo + int(found[-1]) + 1
+    ao, n_rays, contacts, attributes = _compute(scene, method, options, progress, (a, b))
+    full = np.ones(hi - lo)
+    full[a - lo : b - lo] = ao
+    padded = {}
+    for name, values in attributes.items():
+        padded[name] = unselected_values(name, surface, values)[lo:hi].copy()
+        padded[name][a - lo : b - lo] = values
+    return full, n_rays, contacts, padded
 
 
 def _write(
     source, surface, outputs, parts, method, options, placed, color, up_axis, meters_per_unit,
-    channel=None, weld=False, overlay=None,
+    channel=None, weld=False, overlay=None, selection=None,
 ) -> BakeReport:  # fmt: skip
     """Fields applied, checks, every output written atomically (all or none)."""
     from .io import atomic_write, write_bake
 
     ao = parts[0].ao if len(parts) == 1 else np.concatenate([p.ao for p in parts])
+    attributes = {k: np.concatenate([p.attributes[k] for p in parts]) for k in parts[0].attributes}
     seconds = sum(p.seconds for p in parts)
     skipped: tuple = ()
     with CompileWatch() as watch:
@@ -353,6 +407,14 @@ def _write(
         field_seconds = perf_counter() - t0 - watch.seconds
     if ao.shape != (surface.n_vertices,):
         raise NumericalError(f"{surface.source}: {method} returned {ao.shape} values for {surface.n_vertices} vertices")
+    if selection is not None:  # receivers not selected keep the input's values
+        from .selection import kept_ao, unselected_values
+
+        idle = ~selection.receiving(surface)
+        ao = np.where(idle, kept_ao(surface), ao)
+        for name, values in attributes.items():
+            attributes[name] = np.where(idle[:, None] if values.ndim == 2 else idle,
+                                        unselected_values(name, surface, values), values)  # fmt: skip
     custom = {"method": method, "version": __version__, "source": Path(str(source)).name}
     custom.update({k: ("none" if v is None else v) for k, v in options.items() if k not in ("threads", "chunk_rays")})
     if placed:
@@ -361,6 +423,8 @@ def _write(
         custom["weld"] = True
     if channel is not None:
         custom["channel"] = channel
+    if selection is not None:
+        custom.update(selection.provenance)
     # Stage metrics: what the caller says, else what the input said (USD, glTF), else
     # the documented defaults. An unauthored metersPerUnit would mean centimetres.
     meta = surface.metadata
@@ -378,6 +442,7 @@ def _write(
                 up_axis=up_axis or meta.get("up_axis") or DEFAULT_UP_AXIS,
                 meters_per_unit=meters_per_unit or meta.get("meters_per_unit") or DEFAULT_METERS_PER_UNIT,
                 overlay=overlay,
+                attributes=attributes,
             )
     return BakeReport(
         source=Path(str(source)).name,
@@ -533,7 +598,7 @@ def sweep_file(
         options.setdefault("threads", threads)
         if method == "embree":
             options.setdefault("seed", seed)
-        ao, rays, _ = _compute(surface, method, options, None)
+        ao, rays, *_ = _compute(surface, method, options, None)
         return ao, rays
 
     grid = sweep.default_grid(methods or METHODS)

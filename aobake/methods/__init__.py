@@ -33,11 +33,15 @@ class MethodResult:
         Rays cast in total (0 for methods that cast none).
     contacts : int
         Vertices whose starting point was moved off a touching surface.
+    attributes : dict of str to array
+        Extra per-vertex results to write beside ``ao`` (``bentNormal`` (n, 3)), one row
+        per vertex baked (:func:`aobake.io.write_bake`).
     """
 
     ao: Any
     n_rays: int = 0
     contacts: int = 0
+    attributes: Any = None
 
 
 def _check_name(name: str) -> None:

@@ -33,6 +33,9 @@ class EmbreeOptions:
         and the local edge length (:func:`aobake.contacts.ray_offsets`).
     tolerance : float or None
         Adaptive sampling: stop a vertex once its 95% interval half-width is below this.
+    bent_normals : bool
+        Also estimate the bent normal per vertex (``EmbreeAO.bent_normals``, written
+        as the attribute ``bentNormal``) from the same rays.
     seed : int
         Key of the per-vertex Owen-scrambled Sobol directions.
     threads : int or None
@@ -56,6 +59,11 @@ class EmbreeOptions:
         low=0,
         low_open=True,
         none="off",
+    )
+    bent_normals: bool = option(
+        False,
+        "Also write bentNormal: the mean unoccluded direction per vertex (unit, world space).",
+        kind=bool,
     )
     seed: int = seed_option()
     threads: int | None = threads_option()
