@@ -6,6 +6,7 @@ from __future__ import annotations
 import base64
 import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -412,11 +413,10 @@ def test_mesh_light_emits_from_its_triangles(tmp_path):
     _quads(stage, "/World/ground", n=1)
     panel = _quads(stage, "/World/panel", n=2)  # area 2
     panel.AddTranslateOp().Set(Gf.Vec3d(0, 0, 3))
-    api = UsdLux.MeshLightAPI.Apply(panel.GetPrim())
+    UsdLux.MeshLightAPI.Apply(panel.GetPrim())
     light = UsdLux.LightAPI(panel.GetPrim())
     light.CreateIntensityAttr(6.0)
     light.CreateNormalizeAttr(True)
-    del api
     _, shading = _read(stage, path)
     assert shading.lights == ()
     np.testing.assert_allclose(shading.face_emission[:2], 0.0)
@@ -652,3 +652,59 @@ def test_bad_light_specs(spec, message):
     with pytest.raises(ValueError) as info:
         parse_light_spec(spec, 4)
     assert str(info.value).startswith(f"--light 4 {spec!r}: ") and message in str(info.value)
+
+
+# -- USD: scenes as artists build them ----------------------------------------------------
+
+
+def test_instanced_meshes_and_lights(tmp_path):
+    stage, path = _stage(tmp_path)
+    proto = UsdGeom.Xform.Define(stage, "/Proto")
+    mesh = _quads(stage, "/Proto/tile", n=1)
+    material, _ = _material(stage, "/Proto/Looks/m", diffuse=(0.3, 0.6, 0.9))
+    _bind(mesh.GetPrim(), material)
+    bulb = UsdLux.SphereLight.Define(stage, "/Proto/bulb")
+    bulb.AddTranslateOp().Set(Gf.Vec3d(0.5, 0.5, 1))
+    for k in range(2):
+        instance = UsdGeom.Xform.Define(stage, f"/World/i{k}")
+        instance.AddTranslateOp().Set(Gf.Vec3d(3 * k, 0, 0))
+        instance.GetPrim().GetReferences().AddInternalReference(proto.GetPath())
+        instance.GetPrim().SetInstanceable(True)
+    surface, shading = _read(stage, path)
+    assert len(surface.parts) == 3  # /Proto itself is a visible mesh too
+    np.testing.assert_allclose(shading.face_albedo, [[0.3, 0.6, 0.9]] * 6, rtol=1e-6)
+    positions = sorted(tuple(light.position) for light in shading.lights)
+    assert positions == [(0.5, 0.5, 1.0), (0.5, 0.5, 1.0), (3.5, 0.5, 1.0)]
+
+
+def test_legacy_unprefixed_light_attributes(tmp_path):
+    stage, path = _stage(tmp_path)
+    _quads(stage)
+    light = UsdLux.SphereLight.Define(stage, "/World/old")
+    light.GetPrim().CreateAttribute("intensity", Sdf.ValueTypeNames.Float).Set(9.0)
+    light.GetPrim().CreateAttribute("color", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(1, 0, 0))
+    _, shading = _read(stage, path)
+    np.testing.assert_allclose(shading.lights[0].value, [9.0, 0.0, 0.0])
+
+
+def test_light_with_a_non_finite_transform(tmp_path):
+    stage, path = _stage(tmp_path)
+    _quads(stage)
+    UsdLux.SphereLight.Define(stage, "/World/l").AddTranslateOp().Set(Gf.Vec3d(0, float("nan"), 0))
+    with pytest.raises(InputError, match=r"^scene.usda: /World/l: its transform is not finite$"):
+        _read(stage, path)
+
+
+def test_bundled_cornell_box():
+    path = Path(__file__).resolve().parents[1] / "data" / "cornell_box.usda"
+    surface = load_mesh(path)
+    shading = read_shading(path, surface)
+    (light,) = shading.lights
+    assert light.kind == "rect" and light.name == "/World/light"
+    np.testing.assert_allclose(light.value, [12.0, 12 * 0.88, 12 * 0.72], rtol=1e-6)
+    np.testing.assert_allclose(light.normal, [0, -1, 0], atol=1e-9)  # shines down
+    assert light.area == pytest.approx(0.09, rel=1e-6)
+    part = {p.name: p for p in surface.parts}
+    np.testing.assert_allclose(shading.face_albedo[part["left"].face_start], [0.63, 0.065, 0.05], rtol=1e-6)
+    np.testing.assert_allclose(shading.face_albedo[part["right"].face_start], [0.14, 0.45, 0.091], rtol=1e-6)
+    assert shading.notes == () and shading.reflects and not shading.has_emitters

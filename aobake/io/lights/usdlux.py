@@ -95,6 +95,10 @@ def _value(prim, name: str, code, default):
     from pxr import Usd, UsdShade
 
     attr = prim.GetAttribute(name)
+    if name.startswith("inputs:") and not (attr and attr.HasAuthoredValue()):
+        legacy = prim.GetAttribute(name[len("inputs:") :])  # UsdLux before 21.02: no prefix
+        if legacy and legacy.HasAuthoredValue() and prim.HasAPI(_light_api()):
+            attr = legacy
     if not attr:
         return default
     if name.startswith("inputs:") and UsdShade.Input.IsInput(attr):
@@ -105,6 +109,12 @@ def _value(prim, name: str, code, default):
     if value is None and attr.GetNumTimeSamples():
         value = attr.Get(Usd.TimeCode.EarliestTime())
     return default if value is None else value
+
+
+def _light_api():
+    from pxr import UsdLux
+
+    return UsdLux.LightAPI
 
 
 def _scalar(reading: Reading, prim, name: str, code, default: float) -> float:
