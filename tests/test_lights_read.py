@@ -708,3 +708,29 @@ def test_bundled_cornell_box():
     np.testing.assert_allclose(shading.face_albedo[part["left"].face_start], [0.63, 0.065, 0.05], rtol=1e-6)
     np.testing.assert_allclose(shading.face_albedo[part["right"].face_start], [0.14, 0.45, 0.091], rtol=1e-6)
     assert shading.notes == () and shading.reflects and not shading.has_emitters
+
+
+def test_holes_and_a_mirroring_transform_keep_faces_and_colours_aligned(tmp_path):
+    stage, path = _stage(tmp_path)
+    mesh = _quads(stage, n=3)
+    mesh.CreateHoleIndicesAttr([1])  # the middle quad gives no triangle
+    mesh.AddScaleOp().Set(Gf.Vec3f(-1, 1, 1))  # mirrors: the reader flips the winding
+    mesh.CreateDisplayColorPrimvar(UsdGeom.Tokens.uniform).Set([(0.1, 0, 0), (0.5, 0, 0), (0.9, 0, 0)])
+    surface, shading = _read(stage, path)
+    assert surface.n_faces == 4
+    np.testing.assert_allclose(shading.face_albedo[:, 0], [0.1, 0.1, 0.9, 0.9], rtol=1e-6)
+
+
+def test_bad_primvar_count_names_the_prim(tmp_path):
+    stage, path = _stage(tmp_path)
+    mesh = _quads(stage, n=2)
+    mesh.CreateDisplayColorPrimvar(UsdGeom.Tokens.uniform).Set([(0.1, 0.1, 0.1)] * 3)
+    with pytest.raises(InputError, match=r"^scene.usda: /World/ground: primvars:displayColor has 3 uniform values, expected 2$"):
+        _read(stage, path)
+
+
+def test_malformed_gltf_light_is_one_line(tmp_path):
+    node = {"name": "lamp", "extensions": {"KHR_lights_punctual": {"light": 0}}}
+    path = _gltf(tmp_path, lights=["point"], light_nodes=[node])
+    with pytest.raises(InputError, match=r"^scene.gltf: cannot read its lights and materials: "):
+        _gltf_shading(path)

@@ -15,6 +15,7 @@ from pathlib import Path
 from ...errors import InputError
 from ...mesh import Surface
 from ...shading import Light, Shading
+from ..common import short_reason
 from .reading import Reading
 from .spec import SPEC_KINDS, parse_light_spec
 
@@ -79,8 +80,12 @@ def read_shading(
             from .mtl import read_ply_colours
 
             read_ply_colours(reading)
+    except InputError:
+        raise
     except OSError as exc:
         raise InputError(path, f"cannot read: {exc.strerror or exc}") from exc
+    except Exception as exc:  # malformed data a reader did not foresee: still one line
+        raise InputError(path, f"cannot read its lights and materials: {short_reason(exc)}") from exc
     if not scene_lights:
         reading.lights_from = "none (--no-scene-lights)"
     extra = [
