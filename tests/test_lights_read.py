@@ -734,3 +734,23 @@ def test_malformed_gltf_light_is_one_line(tmp_path):
     path = _gltf(tmp_path, lights=["point"], light_nodes=[node])
     with pytest.raises(InputError, match=r"^scene.gltf: cannot read its lights and materials: "):
         _gltf_shading(path)
+
+
+def test_shading_follows_a_weld(tmp_path):
+    from aobake.io.lights import welded_shading
+    from aobake.mesh import weld_vertices
+
+    path = tmp_path / "soup.ply"  # two triangles sharing an edge, stored as a soup
+    path.write_text(
+        "ply\nformat ascii 1.0\nelement vertex 6\nproperty float x\nproperty float y\nproperty float z\n"
+        "property float red\nproperty float green\nproperty float blue\n"
+        "element face 2\nproperty list uchar int vertex_indices\nend_header\n"
+        "0 0 0 0.2 0 0\n1 0 0 0.4 0 0\n0 1 0 0.6 0 0\n1 0 0 0.8 0 0\n1 1 0 1 0 0\n0 1 0 0 0 0\n3 0 1 2\n3 3 4 5\n"
+    )
+    surface = load_mesh(path)
+    shading = read_shading(path, surface)
+    welded, inverse = weld_vertices(surface)
+    moved = welded_shading(shading, inverse)
+    assert moved.vertex_albedo.shape == (4, 3)
+    np.testing.assert_allclose(moved.vertex_albedo[:, 0], [0.2, 0.6, 0.3, 1.0], rtol=1e-6)  # (0.4+0.8)/2, (0.6+0)/2
+    np.testing.assert_array_equal(moved.face_albedo, shading.face_albedo)

@@ -10,7 +10,10 @@ and what is approximated: docs/lights.md. Importing it loads numpy only.
 from __future__ import annotations
 
 from collections.abc import Iterable
+from dataclasses import replace
 from pathlib import Path
+
+import numpy as np
 
 from ...errors import InputError
 from ...mesh import Surface
@@ -19,7 +22,7 @@ from ..common import short_reason
 from .reading import Reading
 from .spec import SPEC_KINDS, parse_light_spec
 
-__all__ = ["SPEC_KINDS", "parse_light_spec", "read_shading"]
+__all__ = ["SPEC_KINDS", "parse_light_spec", "read_shading", "welded_shading"]
 
 
 def read_shading(
@@ -96,3 +99,23 @@ def read_shading(
         reading.lights.extend(extra)
         reading.lights_from = "--light" if reading.lights_from == "none" else f"{reading.lights_from}, --light"
     return reading.shading()
+
+
+def welded_shading(shading: Shading, inverse) -> Shading:
+    """``shading`` of a surface moved onto its welded copy (:func:`aobake.mesh.weld_vertices`
+    returns ``inverse``, the welded vertex of each input vertex): triangles are the same,
+    in the same order; a welded vertex gets the mean of the values of its copies."""
+    inverse = np.asarray(inverse, dtype=np.int64).reshape(-1)
+    if len(inverse) != len(shading.vertex_albedo):
+        raise ValueError(f"inverse has {len(inverse)} entries for {len(shading.vertex_albedo)} vertices")
+    n = int(inverse.max()) + 1 if len(inverse) else 0
+    count = np.bincount(inverse, minlength=n).astype(np.float64)[:, None]
+
+    def merged(values):
+        total = np.zeros((n, values.shape[1]))
+        np.add.at(total, inverse, values)
+        return total / np.maximum(count, 1.0)
+
+    return replace(
+        shading, vertex_albedo=merged(shading.vertex_albedo), vertex_emission=merged(shading.vertex_emission)
+    )
