@@ -345,6 +345,7 @@ def test_geom_subsets_bind_two_materials_per_face(tmp_path):
     for name, faces, material in (("left", [0], red), ("right", [1], blue)):
         subset = binding.CreateMaterialBindSubset(name, faces, UsdGeom.Tokens.face)
         UsdShade.MaterialBindingAPI.Apply(subset.GetPrim()).Bind(material)
+    binding.CreateMaterialBindSubset("unbound", [0], UsdGeom.Tokens.face)  # keeps what it had
     _, shading = _read(stage, path)
     np.testing.assert_allclose(shading.face_albedo, [[0.8, 0.1, 0.1]] * 2 + [[0.1, 0.1, 0.8]] * 2, rtol=1e-6)
     np.testing.assert_allclose(shading.face_emission, [[0, 0, 0]] * 2 + [[0, 0, 3]] * 2)

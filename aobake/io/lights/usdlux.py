@@ -357,6 +357,8 @@ def _read_part_colours(reading: Reading, stage, part, code, mesh_lights: set[str
         if bad.any():
             raise InputError(reading.path, f"{subset.GetPath()}: GeomSubset indices outside the mesh's {len(counts)} faces")
         material = UsdShade.MaterialBindingAPI(subset.GetPrim()).ComputeBoundMaterial()[0]
+        if not material:
+            continue  # an unbound subset's faces keep the mesh's material
         groups.append((polygons, material, str(subset.GetPath())))
     owner = np.repeat(np.arange(len(counts)), counts)
     n_points = part.n_vertices
