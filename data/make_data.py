@@ -249,6 +249,84 @@ def make_box_stack() -> None:
     )
 
 
+#: Diffuse reflectances of the Cornell box (linear RGB, the classic measured values rounded).
+CORNELL_COLORS = {
+    "white": (0.73, 0.73, 0.73),
+    "red": (0.63, 0.065, 0.05),
+    "green": (0.14, 0.45, 0.091),
+}
+
+
+def turned_box(lo, hi, degrees: float, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`box` turned by ``degrees`` about the vertical (+Y) axis through its centre."""
+    positions, faces = box(lo, hi, n)
+    centre = 0.5 * (np.asarray(lo, dtype=np.float64) + np.asarray(hi, dtype=np.float64))
+    a = np.radians(degrees)
+    turn = np.array([[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]])
+    return (positions - centre) @ turn.T + centre, faces
+
+
+def make_cornell_box() -> None:
+    """A 1 m Cornell-like box (USD, +Y up, open at z = 1): white floor, ceiling and back
+    wall, red left and green right walls, two turned blocks, a square RectLight under the
+    ceiling shining down. Needs usd-core (an aobake dependency)."""
+    from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux, UsdShade
+
+    n = 12
+    walls = {
+        "floor": (patch((0, 0, 0), (0, 0, 1), (1, 0, 0), n, n), "white"),
+        "ceiling": (patch((0, 1, 0), (1, 0, 0), (0, 0, 1), n, n), "white"),
+        "back": (patch((0, 0, 0), (1, 0, 0), (0, 1, 0), n, n), "white"),
+        "left": (patch((0, 0, 0), (0, 1, 0), (0, 0, 1), n, n), "red"),
+        "right": (patch((1, 0, 0), (0, 0, 1), (0, 1, 0), n, n), "green"),
+    }
+    blocks = {
+        "tall": (turned_box((0.53, 0.0, 0.2), (0.83, 0.6, 0.5), 15.0, 3), "white"),
+        "short": (turned_box((0.17, 0.0, 0.45), (0.47, 0.3, 0.75), -18.0, 3), "white"),
+    }
+    path = HERE / "cornell_box.usda"
+    layer = Sdf.Layer.CreateAnonymous(".usda")
+    stage = Usd.Stage.Open(layer)
+    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
+    UsdGeom.SetStageMetersPerUnit(stage, 1.0)
+    world = UsdGeom.Xform.Define(stage, "/World")
+    stage.SetDefaultPrim(world.GetPrim())
+    stage.GetRootLayer().documentation = (
+        "aobake procedural Cornell-like box (CC0): 1 m box, +Y up, open at z = 1; white floor, "
+        "ceiling and back, red left (x = 0) and green right (x = 1) walls, two blocks; a 0.3 m "
+        "RectLight under the ceiling shining down. Regenerate with data/make_data.py."
+    )
+    UsdGeom.Scope.Define(stage, "/World/Looks")
+    looks = {}
+    for name, rgb in CORNELL_COLORS.items():
+        material = UsdShade.Material.Define(stage, f"/World/Looks/{name}")
+        shader = UsdShade.Shader.Define(stage, f"/World/Looks/{name}/surface")
+        shader.CreateIdAttr("UsdPreviewSurface")
+        shader.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(*rgb))
+        shader.CreateInput("roughness", Sdf.ValueTypeNames.Float).Set(1.0)
+        material.CreateSurfaceOutput().ConnectToSource(shader.ConnectableAPI(), "surface")
+        looks[name] = material
+    for group, items in (("box", walls), ("blocks", blocks)):
+        UsdGeom.Xform.Define(stage, f"/World/{group}")
+        for name, ((positions, faces), look) in items.items():
+            mesh = UsdGeom.Mesh.Define(stage, f"/World/{group}/{name}")
+            mesh.CreatePointsAttr([Gf.Vec3f(*map(float, p)) for p in positions])
+            mesh.CreateFaceVertexCountsAttr([3] * len(faces))
+            mesh.CreateFaceVertexIndicesAttr([int(i) for i in faces.ravel()])
+            mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
+            UsdShade.MaterialBindingAPI.Apply(mesh.GetPrim()).Bind(looks[look])
+    light = UsdLux.RectLight.Define(stage, "/World/light")
+    light.CreateWidthAttr(0.3)
+    light.CreateHeightAttr(0.3)
+    light.CreateIntensityAttr(12.0)
+    light.CreateColorAttr(Gf.Vec3f(1.0, 0.88, 0.72))
+    xform = UsdGeom.Xformable(light.GetPrim())
+    xform.AddTranslateOp().Set(Gf.Vec3d(0.5, 0.995, 0.5))
+    xform.AddRotateXYZOp().Set(Gf.Vec3f(-90.0, 0.0, 0.0))  # local -Z (emission) -> world -Y
+    path.write_text(stage.GetRootLayer().ExportToString())
+    log.info("%s: %d bytes", path.name, path.stat().st_size)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--bunny", type=Path, help="bunny-1.0.1.tgz from `npm pack bunny@1.0.1`")
@@ -259,6 +337,7 @@ def main() -> None:
         make_bunny(args.bunny)
     make_sphere_on_ground()
     make_box_stack()
+    make_cornell_box()
 
 
 if __name__ == "__main__":
