@@ -269,3 +269,22 @@ def test_gltf_names_that_clash_in_upper_case_are_refused(tmp_path, sources):
     with pytest.raises(NumericalError, match="clash"):
         write_bake(tmp_path / "x.glb", surface, np.ones(n), attributes={"cav": np.ones(n), "CAV": np.ones(n)})
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("name", ["again.usda", "again.glb"])
+def test_rebaking_an_output_replaces_its_attributes(tmp_path, sources, name):
+    """A USD copy or glTF that already holds the attributes, baked again: the new values
+    win (the overlay's opinions over the copy's, the glTF's new accessors)."""
+    surface = sources["usd"] if name.endswith(".usda") else sources["gltf"]
+    first = "copy.usdc" if name.endswith(".usda") else "first.glb"
+    ao, attributes, _ = _values(surface.n_vertices)
+    write_bake(tmp_path / first, surface, ao, attributes=attributes, **({"overlay": False} if first.endswith("c") else {}))
+    again = load_mesh(tmp_path / first)
+    ao2, attributes2, _ = _values(again.n_vertices, seed=4)
+    write_bake(tmp_path / name, again, ao2, attributes=attributes2)
+    if name.endswith(".usda"):
+        got, _ = _read_usd(tmp_path / name, [p.prim_path for p in again.parts])
+    else:
+        got, _ = _read_gltf(tmp_path / name, again, False)
+    for key, values in {"ao": ao2, **attributes2}.items():
+        np.testing.assert_array_equal(got[key], np.asarray(values, dtype=np.float32), err_msg=key)
