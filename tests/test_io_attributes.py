@@ -222,6 +222,9 @@ def test_overlay_holds_only_the_new_primvars(tmp_path, sources):
         assert sorted(spec.attributes.keys()) == [
             "primvars:ao", "primvars:bentNormal", "primvars:cavity", "primvars:irradiance",
         ]  # fmt: skip
+    from test_io_usd_overlay import _validation_errors
+
+    assert _validation_errors(Usd.Stage.Open(str(tmp_path / "o.usda"))) == []
 
 
 BAD = [
