@@ -346,9 +346,11 @@ def test_geom_subsets_bind_two_materials_per_face(tmp_path):
         subset = binding.CreateMaterialBindSubset(name, faces, UsdGeom.Tokens.face)
         UsdShade.MaterialBindingAPI.Apply(subset.GetPrim()).Bind(material)
     binding.CreateMaterialBindSubset("unbound", [0], UsdGeom.Tokens.face)  # keeps what it had
+    mesh.CreateDisplayColorPrimvar(UsdGeom.Tokens.constant).Set([(1, 1, 1)])  # covered by the subsets
     _, shading = _read(stage, path)
     np.testing.assert_allclose(shading.face_albedo, [[0.8, 0.1, 0.1]] * 2 + [[0.1, 0.1, 0.8]] * 2, rtol=1e-6)
     np.testing.assert_allclose(shading.face_emission, [[0, 0, 0]] * 2 + [[0, 0, 3]] * 2)
+    assert shading.sources["albedo"] == "UsdPreviewSurface diffuseColor"  # not the unused default
     # vertex 2 (1, 0, 0) is on one red triangle (0, 2, 3) and two blue ones (2, 4, 5), (2, 5, 3)
     np.testing.assert_allclose(shading.vertex_albedo[2], [(0.8 + 0.2) / 3, 0.1, (0.1 + 1.6) / 3], rtol=1e-6)
     np.testing.assert_allclose(shading.vertex_albedo[0], [0.8, 0.1, 0.1], rtol=1e-6)
