@@ -346,9 +346,11 @@ def test_geom_subsets_bind_two_materials_per_face(tmp_path):
         subset = binding.CreateMaterialBindSubset(name, faces, UsdGeom.Tokens.face)
         UsdShade.MaterialBindingAPI.Apply(subset.GetPrim()).Bind(material)
     binding.CreateMaterialBindSubset("unbound", [0], UsdGeom.Tokens.face)  # keeps what it had
+    mesh.CreateDisplayColorPrimvar(UsdGeom.Tokens.constant).Set([(1, 1, 1)])  # covered by the subsets
     _, shading = _read(stage, path)
     np.testing.assert_allclose(shading.face_albedo, [[0.8, 0.1, 0.1]] * 2 + [[0.1, 0.1, 0.8]] * 2, rtol=1e-6)
     np.testing.assert_allclose(shading.face_emission, [[0, 0, 0]] * 2 + [[0, 0, 3]] * 2)
+    assert shading.sources["albedo"] == "UsdPreviewSurface diffuseColor"  # not the unused default
     # vertex 2 (1, 0, 0) is on one red triangle (0, 2, 3) and two blue ones (2, 4, 5), (2, 5, 3)
     np.testing.assert_allclose(shading.vertex_albedo[2], [(0.8 + 0.2) / 3, 0.1, (0.1 + 1.6) / 3], rtol=1e-6)
     np.testing.assert_allclose(shading.vertex_albedo[0], [0.8, 0.1, 0.1], rtol=1e-6)
@@ -755,3 +757,18 @@ def test_shading_follows_a_weld(tmp_path):
     assert moved.vertex_albedo.shape == (4, 3)
     np.testing.assert_allclose(moved.vertex_albedo[:, 0], [0.2, 0.6, 0.3, 1.0], rtol=1e-6)  # (0.4+0.8)/2, (0.6+0)/2
     np.testing.assert_array_equal(moved.face_albedo, shading.face_albedo)
+
+
+def test_ply_face_colours(tmp_path):
+    path = tmp_path / "faces.ply"
+    path.write_text(
+        "ply\nformat ascii 1.0\nelement vertex 5\nproperty float x\nproperty float y\nproperty float z\n"
+        "element face 2\nproperty list uchar int vertex_indices\n"
+        "property uchar red\nproperty uchar green\nproperty uchar blue\nend_header\n"
+        "0 0 0\n1 0 0\n1 1 0\n0 1 0\n2 0 0\n4 0 1 2 3 255 0 0\n3 1 4 2 0 0 255\n"
+    )
+    shading = _gltf_shading(path)
+    np.testing.assert_allclose(shading.face_albedo, [[1, 0, 0], [1, 0, 0], [0, 0, 1]])  # quad: 2 triangles
+    np.testing.assert_allclose(shading.vertex_albedo[0], [1, 0, 0])
+    np.testing.assert_allclose(shading.vertex_albedo[4], [0, 0, 1])
+    assert shading.sources["albedo"] == "PLY face colours (sRGB-encoded integers)"

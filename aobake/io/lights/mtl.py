@@ -1,5 +1,5 @@
 """OBJ/MTL: ``Kd`` as albedo and ``Ke`` as emission, per material and so per face
-(``mtllib`` and ``usemtl`` of the OBJ); PLY: vertex colours as albedo. Neither format
+(``mtllib`` and ``usemtl`` of the OBJ); PLY: vertex (else face) colours as albedo. Neither format
 has lights. Imports numpy only.
 """
 
@@ -13,7 +13,7 @@ from ...errors import InputError
 from ...shading import DEFAULT_ALBEDO
 from ..color import srgb_to_linear
 from ..common import decode_text
-from ..ply import vertex_colors
+from ..ply import COLOR_NAMES, vertex_colors
 from .reading import Reading, check_colour
 
 
@@ -96,25 +96,40 @@ def read_mtl(path: Path) -> dict[str, dict]:
 
 
 def read_ply_colours(reading: Reading) -> None:
-    """PLY vertex colours ``red green blue`` as albedo: integer colours are sRGB-encoded
-    (decoded to linear), float colours are taken as linear."""
+    """PLY colours ``red green blue`` as albedo, of the vertices (else of the faces):
+    integer colours are sRGB-encoded (decoded to linear), float colours taken as linear."""
     kept = reading.surface.metadata.get("ply")
-    found = None if kept is None else vertex_colors(kept)
-    if found is None:
+    if kept is None:
         return
-    values, dtype = found
+    found = vertex_colors(kept)
+    if found is not None:
+        linear = _linear_colours(reading, *found, "vertex")
+        if len(linear) != reading.surface.n_vertices:
+            raise ValueError(
+                f"{reading.path.name}: {len(linear)} PLY colours for {reading.surface.n_vertices} vertices "
+                "(read the shading before welding)"
+            )
+        reading.face_albedo[:] = linear[reading.surface.faces].mean(axis=1)
+        reading.vertex_albedo[:] = linear
+        return
+    face = kept.data.elements.get("face")
+    columns = {} if face is None else face.properties
+    if not all(isinstance(columns.get(c), np.ndarray) for c in COLOR_NAMES[:3]):
+        return
+    dtype = dict((n, t) for n, t, _ in kept.types["face"])["red"]
+    linear = _linear_colours(reading, np.column_stack([columns[c] for c in COLOR_NAMES[:3]]), dtype, "face")
+    counts = np.concatenate([p.face_vertex_counts for p in reading.surface.parts])
+    owner = np.repeat(np.arange(len(counts)), np.maximum(counts - 2, 0))
+    if len(counts) != len(linear) or len(owner) != reading.surface.n_faces:
+        raise InputError(reading.path, f"has {len(linear)} face colours for {len(counts)} faces")
+    reading.face_albedo[:] = linear[owner]
+
+
+def _linear_colours(reading: Reading, values, dtype, element: str) -> np.ndarray:
     values = np.asarray(values[:, :3], dtype=np.float64)
-    if len(values) != reading.surface.n_vertices:
-        raise ValueError(
-            f"{reading.path.name}: {len(values)} PLY colours for {reading.surface.n_vertices} vertices "
-            "(read the shading before welding)"
-        )
     if np.dtype(dtype).kind in "iu":
         top = float(np.iinfo(np.dtype(dtype)).max)
-        linear = srgb_to_linear(check_colour(values, reading, "vertex", "colour", albedo=False) / top)
-        reading.albedo_source("PLY vertex colours (sRGB-encoded integers)")
-    else:
-        linear = check_colour(values, reading, "vertex", "colour", albedo=True)
-        reading.albedo_source("PLY vertex colours (float, linear)")
-    reading.face_albedo[:] = linear[reading.surface.faces].mean(axis=1)
-    reading.vertex_albedo[:] = linear
+        reading.albedo_source(f"PLY {element} colours (sRGB-encoded integers)")
+        return srgb_to_linear(check_colour(values, reading, element, "colour", albedo=False) / top)
+    reading.albedo_source(f"PLY {element} colours (float, linear)")
+    return check_colour(values, reading, element, "colour", albedo=True)

@@ -361,19 +361,23 @@ def _read_part_colours(reading: Reading, stage, part, code, mesh_lights: set[str
             continue  # an unbound subset's faces keep the mesh's material
         groups.append((polygons, material, str(subset.GetPath())))
     owner = np.repeat(np.arange(len(counts)), counts)
+    # each subset's corners, found once for albedo and emission
+    groups = [(None if p is None else np.isin(owner, p), m, name) for p, m, name in groups]
+    if len(groups) > 1 and np.logical_or.reduce([mask for mask, _, _ in groups[1:]]).all():
+        groups = groups[1:]  # the subsets cover every face: the mesh's own colour is not used
     n_points = part.n_vertices
     for which in ("albedo", "emission"):
         if which == "emission" and where in mesh_lights:
             continue
         corners = np.zeros((len(indices), 3))
         per_vertex = None
-        for polygons, material, name in groups:
+        for mask, material, name in groups:
             values, vertex = _group_colour(reading, mesh, material, which, code, counts, indices, n_points, name)
-            if polygons is None:
+            if mask is None:
                 corners[:] = values
                 per_vertex = vertex
             else:
-                corners[np.isin(owner, polygons)] = values[np.isin(owner, polygons)]
+                corners[mask] = values[mask]
                 per_vertex = None  # a vertex may sit on faces of several materials
         face = corners[tri].mean(axis=1) if len(tri) else np.zeros((0, 3))
         reading.set_part(which, part, face, per_vertex)
