@@ -343,12 +343,19 @@ def add_samples(ids, w, row, comp, m, sums, squares):
 @njit(cache=True, fastmath=FASTMATH, nogil=True)
 def bounce_directions(path_org, path_normal, alive, keys, vertex_of, index_of, depth, out_dir):
     """Cosine-weighted directions about each live path's normal; path p is sample
-    ``index_of[p]`` of vertex ``vertex_of[p]`` at ``depth`` (its own scramble)."""
+    ``index_of[p]`` of vertex ``vertex_of[p]`` at ``depth``. The first direction is a
+    scrambled Sobol point; later ones and the samples at hits are independent hashes:
+    two Owen-scrambled copies of one sequence indexed alike are correlated, and a path
+    multiplies them (measured: a bias of ~20% on the box's indirect light)."""
     for p in range(alive.shape[0]):
         if not alive[p]:
             continue
-        s0, s1 = rng.scramble_seeds(rng.hash2(keys[vertex_of[p]], np.uint64(1000003 + depth)))
-        u0, u1 = rng.scrambled_sobol2_seeded(index_of[p], s0, s1)
+        key = rng.hash2(keys[vertex_of[p]], np.uint64(1000003 + depth))
+        if depth == 0:
+            s0, s1 = rng.scramble_seeds(key)
+            u0, u1 = rng.scrambled_sobol2_seeded(index_of[p], s0, s1)
+        else:
+            u0, u1 = rng.random2(index_of[p], key)
         x, y, z = warps.square_to_cosine_hemisphere(u0, u1)
         dx, dy, dz = warps.to_world(x, y, z, path_normal[p, 0], path_normal[p, 1], path_normal[p, 2])
         out_dir[p, 0] = dx
@@ -428,8 +435,7 @@ def hit_samples(
                 continue
             else:
                 shadow = True
-            s0, s1 = rng.scramble_seeds(rng.hash2(key, np.uint64(c)))
-            u0, u1 = rng.scrambled_sobol2_seeded(index_of[p], s0, s1)
+            u0, u1 = rng.random2(index_of[p], rng.hash2(key, np.uint64(c)))
             if c < n_lights:
                 wr, wg, wb, dx, dy, dz, dist = sample_light(kinds[c], params[c], ox, oy, oz, nx, ny, nz, u0, u1)
             else:
