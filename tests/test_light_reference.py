@@ -115,6 +115,10 @@ def test_emissive_quad_matches_the_rectangle():
     )
     assert r.direct[0, 0] == pytest.approx(want, rel=5e-3)
     assert r.lights[-1].name == "emitters" and r.lights[-1].shadow_rays >= 1024
+    # one-sided: the same quad wound the other way emits upwards, away from the receiver
+    flipped = surface_from_arrays(pos, np.vstack([faces[:1], faces[1:, ::-1]]), normals)
+    r = irradiance(flipped, sh, n_samples=64, bounces=0)
+    assert r.direct[0, 0] == 0.0
 
 
 def test_spot_cone_edge_and_culling():

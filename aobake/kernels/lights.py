@@ -203,7 +203,8 @@ def sample_light(kind, p, ox, oy, oz, nx, ny, nz, u0, u1):
 @njit(cache=True, fastmath=FASTMATH, nogil=True)
 def sample_emitter(ox, oy, oz, nx, ny, nz, u0, u1, pos, faces, tris, cdf, emission, lum_total, shorten):
     """One sample of the emitting triangles, chosen by area x emission (``cdf`` over
-    ``tris``); emission is two-sided. Returns (wr, wg, wb, dx, dy, dz, dist), ``dist``
+    ``tris``); a triangle emits on the side its winding's normal points to, as rect
+    and disk lights do. Returns (wr, wg, wb, dx, dy, dz, dist), ``dist``
     shortened by the triangle's ``shorten`` so the emitter itself is not a blocker."""
     lo, hi = 0, cdf.shape[0] - 1
     while lo < hi:  # first entry with cdf > u0
@@ -233,7 +234,7 @@ def sample_emitter(ox, oy, oz, nx, ny, nz, u0, u1, pos, faces, tris, cdf, emissi
         return 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0
     tx, ty, tz = tx / d, ty / d, tz / d
     c = _dot(nx, ny, nz, tx, ty, tz)
-    cl = abs(_dot(gx, gy, gz, tx, ty, tz)) / g
+    cl = -_dot(gx, gy, gz, tx, ty, tz) / g  # one-sided: the receiver in front of the face
     if not (c > 0.0 and cl > 0.0):
         return 0.0, 0.0, 0.0, tx, ty, tz, d
     er, eg, eb = emission[t, 0], emission[t, 1], emission[t, 2]

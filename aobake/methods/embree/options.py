@@ -98,7 +98,7 @@ class LightOptions:
 
     n_samples: int = option(64, "Shadow rays per area light and vertex.", kind=int, low=1, high=MAX_RAYS, flag="light-samples")
     bounces: int = option(1, "Indirect bounces (0 = direct light only).", kind=int, low=0, high=64)
-    n_indirect: int = option(64, "Indirect paths per vertex (each bounce adds one ray per path).", kind=int, low=1, high=MAX_RAYS, flag="indirect-rays")
+    n_indirect: int = option(256, "Indirect paths per vertex (each bounce adds one ray per path).", kind=int, low=1, high=MAX_RAYS, flag="indirect-rays")
     tolerance: float | None = option(
         None,
         "Adaptive: stop a vertex once its 95% half-width is below this fraction of its irradiance.",
