@@ -73,3 +73,50 @@ class EmbreeOptions:
 
 
 OPTIONS = EmbreeOptions
+
+
+@dataclass(frozen=True)
+class LightOptions:
+    """What a user chooses for :func:`aobake.methods.embree.light.irradiance`.
+
+    Attributes
+    ----------
+    n_samples : int
+        Shadow rays per area light (rect, disk, sphere, the emitting triangles together,
+        a distant light with an angle) and receiver; point, spot and sharp distant
+        lights take one.
+    bounces : int
+        Indirect bounces K (0 = direct light only).
+    n_indirect : int
+        Cosine-weighted paths per vertex (they also carry a dome's light).
+    tolerance : float or None
+        Adaptive: stop a vertex once its 95% half-width is below this fraction of its
+        irradiance (per channel, the largest).
+    max_distance, bias, seed, threads
+        As for :class:`EmbreeOptions`.
+    """
+
+    n_samples: int = option(64, "Shadow rays per area light and vertex.", kind=int, low=1, high=MAX_RAYS, flag="light-samples")
+    bounces: int = option(1, "Indirect bounces (0 = direct light only).", kind=int, low=0, high=64)
+    n_indirect: int = option(256, "Indirect paths per vertex (each bounce adds one ray per path).", kind=int, low=1, high=MAX_RAYS, flag="indirect-rays")
+    tolerance: float | None = option(
+        None,
+        "Adaptive: stop a vertex once its 95% half-width is below this fraction of its irradiance.",
+        kind=float,
+        low=0,
+        low_open=True,
+        none="off",
+    )
+    max_distance: float | None = max_distance_option()
+    bias: float | None = option(
+        None,
+        "Ray origin offset along the normal (mesh units).",
+        kind=float,
+        low=0,
+        none="from float precision and edge length",
+    )
+    seed: int = seed_option()
+    threads: int | None = threads_option()
+
+    def __post_init__(self):
+        validate(self)
