@@ -78,6 +78,11 @@ class Settings:
     overlay: bool | None = None
     receivers: tuple = ()
     occluders: tuple = ()
+    effects: str | tuple = "auto"
+    lights: tuple = ()
+    scene_lights: bool = True
+    split_irradiance: bool = False
+    exposure: float = 0.0
 
     def bake_kwargs(self, threads: int | None) -> dict:
         options = dict(self.options)
@@ -95,6 +100,11 @@ class Settings:
             overlay=self.overlay,
             receivers=self.receivers,
             occluders=self.occluders,
+            effects=self.effects,
+            lights=self.lights,
+            scene_lights=self.scene_lights,
+            split_irradiance=self.split_irradiance,
+            exposure=self.exposure,
             **options,
         )
 
@@ -210,6 +220,17 @@ def file_hash(path: str | Path) -> str:
     return digest.hexdigest()
 
 
+def _light_key(settings: Settings) -> dict:
+    """The light settings that differ from their defaults (an AO batch's key is unchanged)."""
+    defaults = Settings()
+    names = ("effects", "lights", "scene_lights", "split_irradiance", "exposure")
+    return {
+        name: list(value) if isinstance(value, tuple) else value
+        for name in names
+        if (value := getattr(settings, name)) != getattr(defaults, name)
+    }
+
+
 def settings_key(settings: Settings, formats: Sequence[str]) -> tuple[dict, str]:
     """What decides the outputs' bytes besides the input (every option resolved to its
     value, field files by content, the formats), and its sha256."""
@@ -228,6 +249,7 @@ def settings_key(settings: Settings, formats: Sequence[str]) -> tuple[dict, str]
         "time": settings.time,
         "overlay": settings.overlay,
         **{key: list(getattr(settings, key)) for key in ("receivers", "occluders") if getattr(settings, key)},
+        **_light_key(settings),
         "fields": [
             {"file": Path(f).name, "sha256": file_hash(f), "placement": None if p is None else list(p)}
             for f, p in (_field_parts(item) for item in settings.fields)
@@ -400,7 +422,7 @@ def part_task(job: Job, settings: Settings, part: tuple, slots: dict):
     from .pipeline import bake_part
 
     kw = settings.bake_kwargs(_worker_threads(slots))
-    for name in ("color", "up_axis", "meters_per_unit", "fields", "channel", "weld", "overlay"):
+    for name in ("color", "up_axis", "meters_per_unit", "fields", "channel", "weld", "overlay", "split_irradiance", "exposure"):
         kw.pop(name)
     try:
         surface = load_mesh(job.source, time=kw.pop("time"))

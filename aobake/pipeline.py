@@ -8,7 +8,7 @@ from __future__ import annotations
 import contextlib
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from time import perf_counter
 from typing import Any
@@ -169,6 +169,11 @@ def bake_file(
     overlay: bool | None = None,
     receivers: Sequence[str] = (),
     occluders: Sequence[str] = (),
+    effects: str | Sequence[str] = "auto",
+    lights: Sequence = (),
+    scene_lights: bool = True,
+    split_irradiance: bool = False,
+    exposure: float = 0.0,
     **options,
 ) -> BakeReport:
     """Load ``source``, bake it once, write ``output`` (.ply, .usda, .usdc, .usd, .usdz,
@@ -201,10 +206,19 @@ def bake_file(
     names; :mod:`aobake.selection`). Occluders not selected are left out of the scene
     (still written); receivers not selected keep the input's ``ao``, else 1.0.
 
+    Light (:mod:`aobake.lighting`): ``effects`` ``"auto"`` computes what the scene calls
+    for (direct light where it has lights or emitters, bounces where some albedo is
+    above zero), or a list such as ``("ao", "direct")``; ``lights``: ``--light`` specs
+    added to the file's own (``scene_lights=False`` ignores those). A lit bake also
+    writes ``irradiance`` (and, with ``split_irradiance``, its direct and indirect
+    terms); ``color`` then writes the lit colour at ``exposure`` stops. A scene without
+    light bakes the AO alone, as if none of this existed.
+
     Returns
     -------
     BakeReport
     """
+    from . import lighting
     from .io import check_outputs
     from .selection import Selection
 
@@ -213,10 +227,14 @@ def bake_file(
     surface = as_surface(source, time)
     check_outputs(surface, outputs, channel)
     selection = Selection.of(surface, receivers, occluders)
-    part = _bake_range(surface, method, options, progress, None, weld=weld, selection=selection)
+    light = lighting.prepare(
+        source, surface, method, options, effects=effects, lights=lights, scene_lights=scene_lights,
+        split=split_irradiance, exposure=exposure,
+    )  # fmt: skip
+    part = _bake_range(surface, method, options, progress, None, weld=weld, selection=selection, light=light)
     return _write(
         source, surface, outputs, [part], method, options, placed, color, up_axis, meters_per_unit,
-        channel, weld, overlay, selection,
+        channel, weld, overlay, selection, light,
     )  # fmt: skip
 
 
@@ -236,7 +254,10 @@ class PartResult:
     compile_seconds : float
         Time spent compiling kernels (a cold numba cache), first run only.
     attributes : dict of str to array
-        Extra per-vertex results of the range (``bentNormal``), written beside ``ao``.
+        Extra per-vertex results of the range (``bentNormal``, ``irradiance``), written
+        beside ``ao``.
+    light : aobake.lighting.LightTotals or None
+        Rays and time of a lit scene's light (its time is in ``seconds`` too).
     """
 
     vertices: tuple
@@ -246,6 +267,7 @@ class PartResult:
     seconds: float
     compile_seconds: float = 0.0
     attributes: dict = field(default_factory=dict)
+    light: Any = None
 
 
 def bake_part(
@@ -257,6 +279,9 @@ def bake_part(
     progress: Progress | None = None,
     receivers: Sequence[str] = (),
     occluders: Sequence[str] = (),
+    effects: str | Sequence[str] = "auto",
+    lights: Sequence = (),
+    scene_lights: bool = True,
     **options,
 ) -> PartResult:
     """Bake one vertex range of ``source`` (a path or a surface) against the whole mesh.
@@ -265,8 +290,11 @@ def bake_part(
     ranges (computed once the mesh is loaded). Only methods in
     :data:`aobake.methods.SPLITTABLE` bake ranges; a range of the whole mesh
     (``vertices=None, parts=None``) works for every method. ``receivers``,
-    ``occluders``: as for :func:`bake_file` (give :func:`write_parts` the same).
+    ``occluders``: as for :func:`bake_file` (give :func:`write_parts` the same). A lit
+    scene (``effects``, ``lights``, ``scene_lights`` as for :func:`bake_file`) is baked
+    whole: a range of it is an error.
     """
+    from . import lighting
     from .selection import Selection
 
     surface = as_surface(source)
@@ -275,7 +303,13 @@ def bake_part(
         n = surface.n_vertices
         vertices = (n * k // count, n * (k + 1) // count)
     selection = Selection.of(surface, receivers, occluders)
-    return _bake_range(surface, method, options, progress, vertices, selection=selection)
+    whole = vertices is None or tuple(vertices) == (0, surface.n_vertices)
+    light = lighting.prepare(source, surface, method, options, effects=effects, lights=lights, scene_lights=scene_lights)
+    if light is not None and not whole:
+        raise InputError(
+            surface.source, f"a lit scene ({light.plan.reasons['direct']}) is baked whole: bake it unsplit, or with --effects ao"
+        )
+    return _bake_range(surface, method, options, progress, vertices, selection=selection, light=light)
 
 
 def write_parts(
@@ -294,6 +328,11 @@ def write_parts(
     overlay: bool | None = None,
     receivers: Sequence[str] = (),
     occluders: Sequence[str] = (),
+    effects: str | Sequence[str] = "auto",
+    lights: Sequence = (),
+    scene_lights: bool = True,
+    split_irradiance: bool = False,
+    exposure: float = 0.0,
     **options,
 ) -> BakeReport:
     """Stitch the ranges of :func:`bake_part` in order and write them like :func:`bake_file`.
@@ -312,14 +351,21 @@ def write_parts(
         expected = part.vertices[1]
     if expected != surface.n_vertices:
         raise ValueError(f"parts cover {expected} of {surface.n_vertices} vertices")
+    from . import lighting
     from .io import check_outputs
     from .selection import Selection
 
     check_outputs(surface, outputs, channel)
     selection = Selection.of(surface, receivers, occluders)
+    light = None
+    if any(p.light is not None for p in parts):  # a whole, lit part (bake_part refuses lit ranges)
+        light = lighting.prepare(
+            source, surface, method, options, effects=effects, lights=lights, scene_lights=scene_lights,
+            split=split_irradiance, exposure=exposure,
+        )  # fmt: skip
     return _write(
         source, surface, outputs, parts, method, options, placed, color, up_axis, meters_per_unit,
-        channel, False, overlay, selection,
+        channel, False, overlay, selection, light,
     )  # fmt: skip
 
 
@@ -338,11 +384,15 @@ def _check_outputs(output, source, overlay: bool | None = None) -> list[Path]:
 
 
 def _bake_range(
-    surface: Surface, method: str, options: dict, progress, vertices, *, weld: bool = False, selection=None
-) -> PartResult:
+    surface: Surface, method: str, options: dict, progress, vertices, *, weld: bool = False, selection=None,
+    light=None,
+) -> PartResult:  # fmt: skip
     """Run ``method`` on ``vertices`` (None: all); compiling kernels is kept out of the time.
     ``weld``: bake the welded mesh (whole meshes only), results per input vertex.
-    ``selection``: trace only its occluders, from its receivers (:func:`_compute_selected`)."""
+    ``selection``: trace only its occluders, from its receivers (:func:`_compute_selected`).
+    ``light``: a lit scene's :class:`aobake.lighting.LightJob`, computed on the same
+    scene (whole meshes only)."""
+    totals = None
     with CompileWatch() as watch:
         t0 = perf_counter()
         if weld:
@@ -359,9 +409,30 @@ def _bake_range(
             ao, n_rays, contacts, attributes = _compute_selected(surface, method, options, progress, vertices, selection)
         else:
             ao, n_rays, contacts, attributes = _compute(surface, method, options, progress, vertices)
+        if light is not None and light.lit:
+            attributes, totals = _compute_light(surface, method, options, progress, vertices, weld, selection, light, attributes)
         seconds = perf_counter() - t0 - watch.seconds
     lo, hi = (0, surface.n_vertices) if vertices is None else vertices
-    return PartResult((lo, hi), ao, n_rays, contacts, seconds, watch.seconds, attributes)
+    return PartResult((lo, hi), ao, n_rays, contacts, seconds, watch.seconds, attributes, totals)
+
+
+def _compute_light(surface, method, options, progress, vertices, weld, selection, light, attributes):
+    """A lit scene's irradiance attributes added to ``attributes``, on the scene the AO
+    was traced on (welded, occluders only); and the light's ray totals."""
+    from . import lighting
+    from .mesh import weld_vertices
+
+    if vertices is not None and tuple(vertices) != (0, surface.n_vertices):
+        raise InputError(surface.source, "a lit scene is baked whole: it takes no vertex range")
+    faces = None if selection is None or selection.occluders.all() else selection.kept_faces(surface)
+    inverse = None
+    scene = surface
+    if weld:
+        scene, inverse = weld_vertices(surface)
+    if faces is not None:
+        scene = replace(scene, faces=scene.faces[faces])
+    extra, totals = lighting.compute(light, scene, method, options, progress, faces=faces, inverse=inverse)
+    return {**attributes, **extra}, totals
 
 
 def _compute_selected(surface: Surface, method: str, options: dict, progress, vertices, selection):
@@ -406,7 +477,7 @@ def _stitched_attributes(surface: Surface, parts) -> dict:
 
 def _write(
     source, surface, outputs, parts, method, options, placed, color, up_axis, meters_per_unit,
-    channel=None, weld=False, overlay=None, selection=None,
+    channel=None, weld=False, overlay=None, selection=None, light=None,
 ) -> BakeReport:  # fmt: skip
     """Fields applied, checks, every output written atomically (all or none)."""
     from .io import atomic_write, write_bake
@@ -440,6 +511,21 @@ def _write(
         custom["channel"] = channel
     if selection is not None:
         custom.update(selection.provenance)
+    display = None
+    light_rays = 0
+    note = _time_note(surface.metadata)
+    if light is not None:
+        from . import lighting
+
+        custom.update(lighting.custom_data(light, options, method))
+        if color:
+            display = lighting.lit_colour(light, attributes[lighting.IRRADIANCE])
+        totals = [p.light for p in parts if p.light is not None]
+        total = lighting.LightTotals(
+            sum(t.shadow_rays for t in totals), sum(t.path_rays for t in totals), sum(t.seconds for t in totals)
+        )
+        note = ", ".join(x for x in (note, lighting.summary(light, total)) if x)
+        light_rays = total.shadow_rays + total.path_rays
     # Stage metrics: what the caller says, else what the input said (USD, glTF), else
     # the documented defaults. An unauthored metersPerUnit would mean centimetres.
     meta = surface.metadata
@@ -458,20 +544,21 @@ def _write(
                 meters_per_unit=meters_per_unit or meta.get("meters_per_unit") or DEFAULT_METERS_PER_UNIT,
                 overlay=overlay,
                 attributes=attributes,
+                display=display,
             )
     return BakeReport(
         source=Path(str(source)).name,
         output=", ".join(str(p) for p in outputs),
         method=method,
         n_vertices=surface.n_vertices,
-        n_rays=sum(p.n_rays for p in parts),
+        n_rays=sum(p.n_rays for p in parts) + light_rays,
         seconds=seconds,
         contacts=parts[0].contacts,
         options=dict(options),
         field_skipped=skipped,
         field_seconds=field_seconds if placed else 0.0,
         compile_seconds=watch.seconds + sum(p.compile_seconds for p in parts),
-        note=_time_note(meta),
+        note=note,
     )
 
 
@@ -662,6 +749,26 @@ def _cached_reference(cache: Path, n: int) -> np.ndarray | None:
             f"not a reference of {n} finite values in [0, 1]; delete it to recompute",
         )
     return values
+
+
+def plan_file(
+    source: str | Path,
+    *,
+    method: str = "embree",
+    effects: str | Sequence[str] = "auto",
+    lights: Sequence = (),
+    scene_lights: bool = True,
+    time: float | None = None,
+    **options,
+):
+    """What ``aobake bake`` of ``source`` with these settings would compute, and why:
+    ``(surface, shading, plan)`` (:func:`aobake.lighting.plan_for`). Reads the file;
+    computes nothing."""
+    from . import lighting
+
+    surface = as_surface(source, time)
+    shading = lighting.read(source, surface, lights=lights, scene_lights=scene_lights)
+    return surface, shading, lighting.plan_for(surface, shading, method, options, lighting.parse_effects(effects))
 
 
 def preview_file(

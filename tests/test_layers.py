@@ -22,7 +22,7 @@ LAYERS = {
     "tracing": 3, "contacts": 3, "plan": 3, "selection": 3,
     "io": 3,
     "methods": 4,
-    "pipeline": 5, "tools": 5, "testing": 5, "batch": 5,
+    "pipeline": 5, "lighting": 5, "tools": 5, "testing": 5, "batch": 5,
     "cli": 6, "__main__": 6, "__init__": 6,
 }  # fmt: skip
 

@@ -9,6 +9,7 @@ surface's time code. ``pxr`` is imported inside the functions only.
 from __future__ import annotations
 
 import math
+import warnings
 
 import numpy as np
 
@@ -33,8 +34,11 @@ def read_usd(reading: Reading, *, scene_lights: bool) -> None:
 
     surface = reading.surface
     source = surface.metadata.get("path") or str(reading.path)
-    with foreign_stderr(reading.path.name):
-        stage = Usd.Stage.Open(str(source))
+    # the mesh reader opened this stage first and reported what USD printed then
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        with foreign_stderr(reading.path.name):
+            stage = Usd.Stage.Open(str(source))
     if stage is None:
         raise InputError(reading.path, "cannot read as USD: the stage did not open")
     time = surface.metadata.get("time")

@@ -7,8 +7,14 @@ loads on first use.
 from __future__ import annotations
 
 from ...lazy import exports
-from .options import EmbreeOptions
+from .options import EmbreeOptions, LightOptions
 
-__all__ = ["EmbreeAO", "EmbreeOptions", "embree_ao", "run"]
+__all__ = ["EmbreeAO", "EmbreeOptions", "LightOptions", "embree_ao", "irradiance", "run", "run_light"]
 
-__getattr__ = exports(__name__, {name: "estimator" for name in ("EmbreeAO", "embree_ao", "run", "estimate")})
+__getattr__ = exports(
+    __name__,
+    {
+        **{name: "estimator" for name in ("EmbreeAO", "embree_ao", "run", "estimate")},
+        **{name: "light" for name in ("irradiance", "run_light", "LightResult")},
+    },
+)

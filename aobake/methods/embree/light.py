@@ -138,6 +138,16 @@ def _rounds(n: int, adaptive: bool) -> list[int]:
         j = min(2 * j, n)
 
 
+def run_light(
+    surface: Surface, shading: Shading, options, progress: Progress | None = None, *, indirect: bool = True
+) -> LightResult:
+    """The method interface (:func:`aobake.methods.run_light`): :func:`irradiance` with
+    the light fields of ``options`` (:class:`~aobake.methods.embree.EmbreeOptions`);
+    ``indirect=False`` computes direct light only."""
+    changes = {} if indirect else {"bounces": 0}
+    return irradiance(surface, shading, options.light(**changes), progress=progress)
+
+
 def irradiance(
     surface: Surface,
     shading: Shading,
