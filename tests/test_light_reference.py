@@ -173,6 +173,10 @@ def test_shadow_disabled_and_a_shadowing_occluder():
     r = lit(surface, [Light.make("point", "p", (2, 2, 2), position=p, shadow=False)], bounces=0)
     assert np.allclose(r.direct[:nf, 0], open_value, rtol=1e-12)
     assert r.n_shadow_rays == 0 and r.lights[0].shadow_rays == 0
+    # --max-distance: a plate farther than that casts no shadow (as for the AO rays)
+    r = lit(surface, [Light.make("point", "p", (2, 2, 2), position=p)], bounces=0, max_distance=0.3)
+    assert np.allclose(r.direct[:nf, 0], open_value, rtol=1e-12)
+    assert r.n_shadow_rays == surface.n_vertices  # every vertex, the plate's too, faces the light
 
 
 @pytest.mark.parametrize("bounces", [0, 1, 2])
