@@ -285,3 +285,24 @@ def test_indirect_converges_like_independent_samples():
         return np.sqrt(((a - b) ** 2).sum() / (b**2).sum())
 
     assert gap(512) < 0.4 * gap(32)
+
+
+def test_shading_that_does_not_fit_is_refused():
+    surface = grid(cells=1)
+    sh = default_shading(surface.n_vertices, surface.n_faces)
+    with pytest.raises(ValueError, match="face_albedo has shape"):
+        irradiance(surface, Shading((), sh.face_albedo[:1], sh.face_emission, sh.vertex_albedo, sh.vertex_emission))
+    with pytest.raises(ValueError, match="above 1"):
+        irradiance(surface, Shading((), sh.face_albedo * 10, sh.face_emission, sh.vertex_albedo, sh.vertex_emission))
+    with pytest.raises(ValueError, match="non-finite"):
+        irradiance(surface, Shading((), sh.face_albedo, sh.face_emission * np.nan, sh.vertex_albedo, sh.vertex_emission))
+
+
+def test_lazy_exports_and_defaults():
+    import aobake.methods.embree as embree
+
+    assert embree.irradiance is irradiance
+    opts = embree.LightOptions()
+    assert (opts.n_samples, opts.bounces, opts.n_indirect, opts.tolerance) == (64, 1, 256, None)
+    with pytest.raises(ValueError, match="bounces"):
+        embree.LightOptions(bounces=-1)

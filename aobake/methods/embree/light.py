@@ -184,6 +184,7 @@ def irradiance(
     are bit-identical for any thread count and chunking.
     """
     options = build(LightOptions, options, **changes)
+    _check_shading(surface, shading)
     t0 = time.perf_counter()
     progress = progress or NullProgress()
     threads = max(1, int(options.threads or os.cpu_count() or 1))
@@ -409,6 +410,20 @@ def irradiance(
         seconds=time.perf_counter() - t0,
         contacts=contacts,
     )
+
+
+def _check_shading(surface: Surface, shading: Shading) -> None:
+    """ValueError unless ``shading``'s arrays fit ``surface`` and are finite, albedo in
+    [0, 1] and emission >= 0 (a reader's bug, not a user's file: readers check those)."""
+    m, n = surface.n_faces, surface.n_vertices
+    for name, rows in (("face_albedo", m), ("face_emission", m), ("vertex_albedo", n), ("vertex_emission", n)):
+        arr = np.asarray(getattr(shading, name))
+        if arr.shape != (rows, 3):
+            raise ValueError(f"shading.{name} has shape {arr.shape}, the surface needs ({rows}, 3)")
+        if not np.isfinite(arr).all() or arr.min(initial=0.0) < 0:
+            raise ValueError(f"shading.{name} has negative or non-finite values")
+    if np.asarray(shading.face_albedo).max(initial=0.0) > 1:
+        raise ValueError("shading.face_albedo above 1 would add energy at every bounce")
 
 
 def _estimate(sums, squares, path_d, path_i, path_sq, taken, taken_paths, sampled, exact, rows, split=False):
