@@ -170,7 +170,7 @@ def read(source: Any, surface: Surface, *, lights: Sequence = (), scene_lights: 
     from .shading import default_shading
 
     if isinstance(source, (str, Path)):
-        return read_shading(source, surface, scene_lights=scene_lights, cli_lights=lights)
+        return read_shading(source, surface, scene_lights=scene_lights, cli_lights=lights, dark_materials=False)
     parsed = [parse_light_spec(x, k) if isinstance(x, str) else x for k, x in enumerate(lights, 1)]
     return default_shading(surface.n_vertices, surface.n_faces, parsed)
 

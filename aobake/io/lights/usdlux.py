@@ -28,8 +28,10 @@ IGNORED_TYPES = ("PortalLight",)
 SHAPE_TOLERANCE = 1e-6
 
 
-def read_usd(reading: Reading, *, scene_lights: bool) -> None:
-    """Fill ``reading`` from the USD stage the surface was read from."""
+def read_usd(reading: Reading, *, scene_lights: bool, extra_lights: bool = False) -> None:
+    """Fill ``reading`` from the USD stage the surface was read from. The materials are
+    read only where something may light the scene (its lights, an emissive material, or
+    ``extra_lights``: lights given apart, ``--light``)."""
     from pxr import Usd
 
     surface = reading.surface
@@ -45,9 +47,24 @@ def read_usd(reading: Reading, *, scene_lights: bool) -> None:
     code = Usd.TimeCode.Default() if time is None else Usd.TimeCode(time)
     with foreign_stderr(reading.path.name):
         emissive_meshes = _read_lights(reading, stage, code) if scene_lights else set()
+        if not (reading.lights or emissive_meshes or extra_lights or _may_emit(stage)):
+            return  # nothing lights the scene: its AO is all a bake computes, skip the materials
         for part in surface.parts:
             if part.prim_path is not None:
                 _read_part_colours(reading, stage, part, code, emissive_meshes)
+
+
+def _may_emit(stage) -> bool:
+    """Whether some UsdPreviewSurface of the stage authors ``emissiveColor`` (a value or a
+    connection): one pass over the prims, far cheaper than resolving every binding."""
+    from pxr import Usd, UsdShade
+
+    for prim in stage.Traverse(Usd.TraverseInstanceProxies()):
+        if prim.IsA(UsdShade.Shader):
+            attr = prim.GetAttribute("inputs:emissiveColor")
+            if attr and (attr.HasAuthoredValue() or attr.HasAuthoredConnections()):
+                return True
+    return False
 
 
 # -- lights -------------------------------------------------------------------------------
