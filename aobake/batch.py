@@ -76,6 +76,13 @@ class Settings:
     weld: bool = False
     time: float | None = None
     overlay: bool | None = None
+    receivers: tuple = ()
+    occluders: tuple = ()
+    effects: str | tuple = "auto"
+    lights: tuple = ()
+    scene_lights: bool = True
+    split_irradiance: bool = False
+    exposure: float = 0.0
     ground: str | float | None = None
 
     def bake_kwargs(self, threads: int | None) -> dict:
@@ -92,6 +99,13 @@ class Settings:
             weld=self.weld,
             time=self.time,
             overlay=self.overlay,
+            receivers=self.receivers,
+            occluders=self.occluders,
+            effects=self.effects,
+            lights=self.lights,
+            scene_lights=self.scene_lights,
+            split_irradiance=self.split_irradiance,
+            exposure=self.exposure,
             ground=self.ground,
             **options,
         )
@@ -208,6 +222,17 @@ def file_hash(path: str | Path) -> str:
     return digest.hexdigest()
 
 
+def _light_key(settings: Settings) -> dict:
+    """The light settings that differ from their defaults (an AO batch's key is unchanged)."""
+    defaults = Settings()
+    names = ("effects", "lights", "scene_lights", "split_irradiance", "exposure")
+    return {
+        name: list(value) if isinstance(value, tuple) else value
+        for name in names
+        if (value := getattr(settings, name)) != getattr(defaults, name)
+    }
+
+
 def settings_key(settings: Settings, formats: Sequence[str]) -> tuple[dict, str]:
     """What decides the outputs' bytes besides the input (every option resolved to its
     value, field files by content, the formats), and its sha256."""
@@ -225,6 +250,8 @@ def settings_key(settings: Settings, formats: Sequence[str]) -> tuple[dict, str]
         "weld": settings.weld,
         "time": settings.time,
         "overlay": settings.overlay,
+        **{key: list(getattr(settings, key)) for key in ("receivers", "occluders") if getattr(settings, key)},
+        **_light_key(settings),
         "fields": [
             {"file": Path(f).name, "sha256": file_hash(f), "placement": None if p is None else list(p)}
             for f, p in (_field_parts(item) for item in settings.fields)
@@ -399,7 +426,7 @@ def part_task(job: Job, settings: Settings, part: tuple, slots: dict):
     from .pipeline import bake_part
 
     kw = settings.bake_kwargs(_worker_threads(slots))
-    for name in ("color", "meters_per_unit", "fields", "channel", "weld", "overlay"):
+    for name in ("color", "meters_per_unit", "fields", "channel", "weld", "overlay", "split_irradiance", "exposure"):
         kw.pop(name)  # up_axis and ground stay: the plane is resolved along the up axis
     try:
         surface = load_mesh(job.source, time=kw.pop("time"))
@@ -685,6 +712,9 @@ def bake_arguments(settings: Settings) -> list[str]:
         args += ["--time", repr(settings.time)]
     if settings.overlay is not None:
         args.append("--overlay" if settings.overlay else "--no-overlay")
+    for key in ("receivers", "occluders"):
+        for pattern in getattr(settings, key):
+            args += [f"--{key}", pattern]
     if settings.up_axis:
         args += ["--up", settings.up_axis]
     if settings.ground is not None:

@@ -8,7 +8,7 @@ from __future__ import annotations
 import contextlib
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from time import perf_counter
 from typing import Any
@@ -103,8 +103,9 @@ def as_surface(mesh: Any, time: float | None = None) -> Surface:
 
 
 def _compute(surface: Surface, method: str, options: dict, progress: Progress | None, vertices=None, ground=None):
-    """``(ao, n_rays, contacts)`` of ``method`` on ``vertices`` (None: all), a method's
-    numerical error named after the file; ``ground``: a resolved :class:`aobake.ground.Ground`."""
+    """``(ao, n_rays, contacts, attributes)`` of ``method`` on ``vertices`` (None: all), a
+    method's numerical error named after the file; ``ground``: a resolved
+    :class:`aobake.ground.Ground` (None: none)."""
     from .methods import run
 
     extra = {} if ground is None else {"ground": ground}
@@ -118,7 +119,7 @@ def _compute(surface: Surface, method: str, options: dict, progress: Progress | 
         if str(exc).startswith(f"{name}:"):
             raise
         raise NumericalError(f"{name}: {exc}") from None
-    return result.ao, result.n_rays, result.contacts
+    return result.ao, result.n_rays, result.contacts, result.attributes or {}
 
 
 def bake(
@@ -155,13 +156,13 @@ def bake(
     True
     """
     surface = as_surface(mesh)
-    ao, _, _ = _compute(surface, method, options, progress, ground=_ground(surface, ground, None))
+    ao, *_ = _compute(surface, method, options, progress, ground=_ground(surface, ground, None))
     return ao
 
 
 def _ground(surface: Surface, ground, up_axis: str | None):
     """The :class:`aobake.ground.Ground` of ``ground`` (None, "auto", a height or a Ground)
-    along ``up_axis`` (else the input's, else Y); a plane above a vertex is an InputError."""
+    along ``up_axis`` (else the input's, else Y); a plane above a vertex is a SettingError."""
     if ground is None:
         return None
     from .ground import resolve_ground
@@ -185,6 +186,13 @@ def bake_file(
     time: float | None = None,
     overlay: bool | None = None,
     ground=None,
+    receivers: Sequence[str] = (),
+    occluders: Sequence[str] = (),
+    effects: str | Sequence[str] = "auto",
+    lights: Sequence = (),
+    scene_lights: bool = True,
+    split_irradiance: bool = False,
+    exposure: float = 0.0,
     **options,
 ) -> BakeReport:
     """Load ``source``, bake it once, write ``output`` (.ply, .usda, .usdc, .usd, .usdz,
@@ -213,25 +221,46 @@ def bake_file(
     an overlay layer over ``source`` unless ``overlay=False`` (a full flattened copy);
     ``.usdz`` is a flattened package (:func:`aobake.io.usd_output_mode`).
 
+    ``receivers`` / ``occluders``: glob patterns over the parts (USD prim paths, else
+    names; :mod:`aobake.selection`). Occluders not selected are left out of the scene
+    (still written); receivers not selected keep the input's ``ao``, else 1.0.
+
+    Light (:mod:`aobake.lighting`): ``effects`` ``"auto"`` computes what the scene calls
+    for (direct light where it has lights or emitters, bounces where some albedo is
+    above zero), or a list such as ``("ao", "direct")``; ``lights``: ``--light`` specs
+    added to the file's own (``scene_lights=False`` ignores those). A lit bake also
+    writes ``irradiance`` (and, with ``split_irradiance``, its direct and indirect
+    terms); ``color`` then writes the lit colour at ``exposure`` stops. A scene without
+    light bakes the AO alone, as if none of this existed.
+
     ``ground`` ("auto" or a height in mesh units): an infinite occluding plane
-    perpendicular to the up axis that every method counts and nothing receives on
+    perpendicular to the up axis that every AO method counts and nothing receives on
     (:mod:`aobake.ground`), recorded as ``ground=<height>`` in the outputs.
 
     Returns
     -------
     BakeReport
     """
+    from . import lighting
     from .io import check_outputs
+    from .selection import Selection
 
     outputs = _check_outputs(output, source, overlay)
     placed = _load_fields(fields)
     surface = as_surface(source, time)
     check_outputs(surface, outputs, channel)
+    selection = Selection.of(surface, receivers, occluders)
+    light = lighting.prepare(
+        source, surface, method, options, effects=effects, lights=lights, scene_lights=scene_lights,
+        split=split_irradiance, exposure=exposure,
+    )  # fmt: skip
     plane = _ground(surface, ground, up_axis)
-    part = _bake_range(surface, method, options, progress, None, weld=weld, ground=plane)
+    part = _bake_range(
+        surface, method, options, progress, None, weld=weld, selection=selection, light=light, ground=plane
+    )
     return _write(
         source, surface, outputs, [part], method, options, placed, color, up_axis, meters_per_unit,
-        channel, weld, overlay, plane,
+        channel, weld, overlay, selection, light, plane,
     )  # fmt: skip
 
 
@@ -250,6 +279,11 @@ class PartResult:
         Compute time of the range (scene build included, compiling kernels not).
     compile_seconds : float
         Time spent compiling kernels (a cold numba cache), first run only.
+    attributes : dict of str to array
+        Extra per-vertex results of the range (``bentNormal``, ``irradiance``), written
+        beside ``ao``.
+    light : aobake.lighting.LightTotals or None
+        Rays and time of a lit scene's light (its time is in ``seconds`` too).
     """
 
     vertices: tuple
@@ -258,6 +292,8 @@ class PartResult:
     contacts: int
     seconds: float
     compile_seconds: float = 0.0
+    attributes: dict = field(default_factory=dict)
+    light: Any = None
 
 
 def bake_part(
@@ -267,6 +303,11 @@ def bake_part(
     vertices: tuple[int, int] | None = None,
     parts: tuple[int, int] | None = None,
     progress: Progress | None = None,
+    receivers: Sequence[str] = (),
+    occluders: Sequence[str] = (),
+    effects: str | Sequence[str] = "auto",
+    lights: Sequence = (),
+    scene_lights: bool = True,
     ground=None,
     up_axis: str | None = None,
     **options,
@@ -276,15 +317,28 @@ def bake_part(
     Give the range as ``vertices=(lo, hi)`` or as ``parts=(k, K)``: the k-th of K equal
     ranges (computed once the mesh is loaded). Only methods in
     :data:`aobake.methods.SPLITTABLE` bake ranges; a range of the whole mesh
-    (``vertices=None, parts=None``) works for every method. ``ground`` and ``up_axis``:
-    as for :func:`bake_file`.
+    (``vertices=None, parts=None``) works for every method. ``receivers``,
+    ``occluders``: as for :func:`bake_file` (give :func:`write_parts` the same). A lit
+    scene (``effects``, ``lights``, ``scene_lights`` as for :func:`bake_file`) is baked
+    whole: a range of it is an error. ``ground`` and ``up_axis``: as for :func:`bake_file`.
     """
+    from . import lighting
+    from .selection import Selection
+
     surface = as_surface(source)
     if parts is not None:
         k, count = parts
         n = surface.n_vertices
         vertices = (n * k // count, n * (k + 1) // count)
-    return _bake_range(surface, method, options, progress, vertices, ground=_ground(surface, ground, up_axis))
+    selection = Selection.of(surface, receivers, occluders)
+    whole = vertices is None or tuple(vertices) == (0, surface.n_vertices)
+    light = lighting.prepare(source, surface, method, options, effects=effects, lights=lights, scene_lights=scene_lights)
+    if light is not None and not whole:
+        raise InputError(
+            surface.source, f"a lit scene ({light.plan.reasons['direct']}) is baked whole: bake it unsplit, or with --effects ao"
+        )
+    plane = _ground(surface, ground, up_axis)
+    return _bake_range(surface, method, options, progress, vertices, selection=selection, light=light, ground=plane)
 
 
 def write_parts(
@@ -301,6 +355,13 @@ def write_parts(
     channel: str | None = None,
     time: float | None = None,
     overlay: bool | None = None,
+    receivers: Sequence[str] = (),
+    occluders: Sequence[str] = (),
+    effects: str | Sequence[str] = "auto",
+    lights: Sequence = (),
+    scene_lights: bool = True,
+    split_irradiance: bool = False,
+    exposure: float = 0.0,
     ground=None,
     **options,
 ) -> BakeReport:
@@ -320,13 +381,22 @@ def write_parts(
         expected = part.vertices[1]
     if expected != surface.n_vertices:
         raise ValueError(f"parts cover {expected} of {surface.n_vertices} vertices")
+    from . import lighting
     from .io import check_outputs
+    from .selection import Selection
 
     check_outputs(surface, outputs, channel)
+    selection = Selection.of(surface, receivers, occluders)
+    light = None
+    if any(p.light is not None for p in parts):  # a whole, lit part (bake_part refuses lit ranges)
+        light = lighting.prepare(
+            source, surface, method, options, effects=effects, lights=lights, scene_lights=scene_lights,
+            split=split_irradiance, exposure=exposure,
+        )  # fmt: skip
     plane = _ground(surface, ground, up_axis)
     return _write(
         source, surface, outputs, parts, method, options, placed, color, up_axis, meters_per_unit,
-        channel, False, overlay, plane,
+        channel, False, overlay, selection, light, plane,
     )  # fmt: skip
 
 
@@ -345,10 +415,15 @@ def _check_outputs(output, source, overlay: bool | None = None) -> list[Path]:
 
 
 def _bake_range(
-    surface: Surface, method: str, options: dict, progress, vertices, *, weld: bool = False, ground=None
-) -> PartResult:
+    surface: Surface, method: str, options: dict, progress, vertices, *, weld: bool = False, selection=None,
+    light=None, ground=None,
+) -> PartResult:  # fmt: skip
     """Run ``method`` on ``vertices`` (None: all); compiling kernels is kept out of the time.
-    ``weld``: bake the welded mesh (whole meshes only), results per input vertex."""
+    ``weld``: bake the welded mesh (whole meshes only), results per input vertex.
+    ``selection``: trace only its occluders, from its receivers (:func:`_compute_selected`).
+    ``light``: a lit scene's :class:`aobake.lighting.LightJob`, computed on the same
+    scene (whole meshes only). ``ground``: a resolved plane every AO method counts."""
+    totals = None
     with CompileWatch() as watch:
         t0 = perf_counter()
         if weld:
@@ -357,23 +432,91 @@ def _bake_range(
             if vertices is not None:
                 raise ValueError("a welded mesh is baked whole: weld takes no vertex range")
             welded, inverse = weld_vertices(surface)
-            ao, n_rays, contacts = _compute(welded, method, options, progress, ground=ground)
+            scene = welded if selection is None else selection.scene(welded)
+            ao, n_rays, contacts, attributes = _compute(scene, method, options, progress, ground=ground)
             ao = np.asarray(ao)[inverse]
+            attributes = {k: np.asarray(v)[inverse] for k, v in attributes.items()}
+        elif selection is not None:
+            ao, n_rays, contacts, attributes = _compute_selected(
+                surface, method, options, progress, vertices, selection, ground
+            )
         else:
-            ao, n_rays, contacts = _compute(surface, method, options, progress, vertices, ground)
+            ao, n_rays, contacts, attributes = _compute(surface, method, options, progress, vertices, ground)
+        if light is not None and light.lit:
+            attributes, totals = _compute_light(surface, method, options, progress, vertices, weld, selection, light, attributes)
         seconds = perf_counter() - t0 - watch.seconds
     lo, hi = (0, surface.n_vertices) if vertices is None else vertices
-    return PartResult((lo, hi), ao, n_rays, contacts, seconds, watch.seconds)
+    return PartResult((lo, hi), ao, n_rays, contacts, seconds, watch.seconds, attributes, totals)
+
+
+def _compute_light(surface, method, options, progress, vertices, weld, selection, light, attributes):
+    """A lit scene's irradiance attributes added to ``attributes``, on the scene the AO
+    was traced on (welded, occluders only); and the light's ray totals."""
+    from . import lighting
+    from .mesh import weld_vertices
+
+    if vertices is not None and tuple(vertices) != (0, surface.n_vertices):
+        raise InputError(surface.source, "a lit scene is baked whole: it takes no vertex range")
+    faces = None if selection is None or selection.occluders.all() else selection.kept_faces(surface)
+    inverse = None
+    scene = surface
+    if weld:
+        scene, inverse = weld_vertices(surface)
+    if faces is not None:
+        scene = replace(scene, faces=scene.faces[faces])
+    extra, totals = lighting.compute(light, scene, method, options, progress, faces=faces, inverse=inverse)
+    return {**attributes, **extra}, totals
+
+
+def _compute_selected(surface: Surface, method: str, options: dict, progress, vertices, selection, ground=None):
+    """:func:`_compute` on the occluders' scene; a method that bakes vertex ranges bakes
+    only the span of receiving vertices in ``vertices`` (the rest is replaced in
+    :func:`_write`)."""
+    from .methods import SPLITTABLE
+    from .selection import unselected_values
+
+    scene = selection.scene(surface)
+    if method not in SPLITTABLE:
+        return _compute(scene, method, options, progress, vertices, ground)
+    lo, hi = (0, surface.n_vertices) if vertices is None else vertices
+    found = np.flatnonzero(selection.receiving(surface)[lo:hi])
+    if found.size == 0:
+        return np.ones(hi - lo), 0, 0, {}
+    a, b = lo + int(found[0]), lo + int(found[-1]) + 1
+    ao, n_rays, contacts, attributes = _compute(scene, method, options, progress, (a, b), ground)
+    full = np.ones(hi - lo)
+    full[a - lo : b - lo] = ao
+    padded = {}
+    for name, values in attributes.items():
+        padded[name] = unselected_values(name, surface, values)[lo:hi].copy()
+        padded[name][a - lo : b - lo] = values
+    return full, n_rays, contacts, padded
+
+
+def _stitched_attributes(surface: Surface, parts) -> dict:
+    """The parts' extra attributes concatenated; a range that baked no receiver (and so
+    has none) holds what vertices not baked hold (:func:`aobake.selection.unselected_values`)."""
+    from .selection import unselected_values
+
+    out = {}
+    for name in dict.fromkeys(k for p in parts for k in p.attributes):
+        template = next(p.attributes[name] for p in parts if name in p.attributes)
+        fill = unselected_values(name, surface, template)
+        out[name] = np.concatenate(
+            [p.attributes[name] if name in p.attributes else fill[p.vertices[0] : p.vertices[1]] for p in parts]
+        )
+    return out
 
 
 def _write(
     source, surface, outputs, parts, method, options, placed, color, up_axis, meters_per_unit,
-    channel=None, weld=False, overlay=None, ground=None,
+    channel=None, weld=False, overlay=None, selection=None, light=None, ground=None,
 ) -> BakeReport:  # fmt: skip
     """Fields applied, checks, every output written atomically (all or none)."""
     from .io import atomic_write, write_bake
 
     ao = parts[0].ao if len(parts) == 1 else np.concatenate([p.ao for p in parts])
+    attributes = _stitched_attributes(surface, parts)
     seconds = sum(p.seconds for p in parts)
     skipped: tuple = ()
     with CompileWatch() as watch:
@@ -383,6 +526,14 @@ def _write(
         field_seconds = perf_counter() - t0 - watch.seconds
     if ao.shape != (surface.n_vertices,):
         raise NumericalError(f"{surface.source}: {method} returned {ao.shape} values for {surface.n_vertices} vertices")
+    if selection is not None:  # receivers not selected keep the input's values
+        from .selection import kept_ao, unselected_values
+
+        idle = ~selection.receiving(surface)
+        ao = np.where(idle, kept_ao(surface), ao)
+        for name, values in attributes.items():
+            attributes[name] = np.where(idle[:, None] if values.ndim == 2 else idle,
+                                        unselected_values(name, surface, values), values)  # fmt: skip
     custom = {"method": method, "version": __version__, "source": Path(str(source)).name}
     custom.update({k: ("none" if v is None else v) for k, v in options.items() if k not in ("threads", "chunk_rays")})
     if placed:
@@ -393,6 +544,23 @@ def _write(
         custom["channel"] = channel
     if ground is not None:
         custom["ground"] = float(ground.height)
+    if selection is not None:
+        custom.update(selection.provenance)
+    display = None
+    light_rays = 0
+    note = _time_note(surface.metadata)
+    if light is not None:
+        from . import lighting
+
+        custom.update(lighting.custom_data(light, options, method))
+        if color:
+            display = lighting.lit_colour(light, attributes[lighting.IRRADIANCE])
+        totals = [p.light for p in parts if p.light is not None]
+        total = lighting.LightTotals(
+            sum(t.shadow_rays for t in totals), sum(t.path_rays for t in totals), sum(t.seconds for t in totals)
+        )
+        note = ", ".join(x for x in (note, lighting.summary(light, total)) if x)
+        light_rays = total.shadow_rays + total.path_rays
     # Stage metrics: what the caller says, else what the input said (USD, glTF), else
     # the documented defaults. An unauthored metersPerUnit would mean centimetres.
     meta = surface.metadata
@@ -410,20 +578,22 @@ def _write(
                 up_axis=up_axis or meta.get("up_axis") or DEFAULT_UP_AXIS,
                 meters_per_unit=meters_per_unit or meta.get("meters_per_unit") or DEFAULT_METERS_PER_UNIT,
                 overlay=overlay,
+                attributes=attributes,
+                display=display,
             )
     return BakeReport(
         source=Path(str(source)).name,
         output=", ".join(str(p) for p in outputs),
         method=method,
         n_vertices=surface.n_vertices,
-        n_rays=sum(p.n_rays for p in parts),
+        n_rays=sum(p.n_rays for p in parts) + light_rays,
         seconds=seconds,
         contacts=parts[0].contacts,
         options=dict(options),
         field_skipped=skipped,
         field_seconds=field_seconds if placed else 0.0,
         compile_seconds=watch.seconds + sum(p.compile_seconds for p in parts),
-        note=_time_note(meta),
+        note=note,
     )
 
 
@@ -565,7 +735,7 @@ def sweep_file(
         options.setdefault("threads", threads)
         if method == "embree":
             options.setdefault("seed", seed)
-        ao, rays, _ = _compute(surface, method, options, None)
+        ao, rays, *_ = _compute(surface, method, options, None)
         return ao, rays
 
     grid = sweep.default_grid(methods or METHODS)
@@ -614,6 +784,26 @@ def _cached_reference(cache: Path, n: int) -> np.ndarray | None:
             f"not a reference of {n} finite values in [0, 1]; delete it to recompute",
         )
     return values
+
+
+def plan_file(
+    source: str | Path,
+    *,
+    method: str = "embree",
+    effects: str | Sequence[str] = "auto",
+    lights: Sequence = (),
+    scene_lights: bool = True,
+    time: float | None = None,
+    **options,
+):
+    """What ``aobake bake`` of ``source`` with these settings would compute, and why:
+    ``(surface, shading, plan)`` (:func:`aobake.lighting.plan_for`). Reads the file;
+    computes nothing."""
+    from . import lighting
+
+    surface = as_surface(source, time)
+    shading = lighting.read(source, surface, lights=lights, scene_lights=scene_lights)
+    return surface, shading, lighting.plan_for(surface, shading, method, options, lighting.parse_effects(effects))
 
 
 def preview_file(

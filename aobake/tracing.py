@@ -92,6 +92,16 @@ class Tracer:
         float32."""
         return self._scene.run(origins, directions, dists=float(self._dists(tfar)), query="OCCLUDED")
 
+    def occluded_within(self, origins, directions, dists: np.ndarray) -> np.ndarray:
+        """:meth:`occluded` with per-ray lengths ``dists`` (k,) float32 already in Embree's
+        frame (mesh units / ``scale``, at most ``INFINITE_DISTANCE``), as kernels make them."""
+        return self._scene.run(origins, directions, dists=dists, query="OCCLUDED")
+
+    def first_hits(self, origins, directions, tfar: float | None = None) -> np.ndarray:
+        """(k,) int32: the triangle each ray hits first within ``tfar`` (mesh units;
+        None: unbounded), -1 for none; ``origins`` as for :meth:`occluded`."""
+        return self._scene.run(origins, directions, dists=float(self._dists(tfar)), query="INTERSECT")
+
     def intersect(self, origins, directions, tfar: np.ndarray) -> dict:
         """Closest hits: dict with ``primID`` (k,) int32 (-1 = miss), ``tfar`` (mesh
         units, float64), ``Ng`` (k, 3); ``origins`` as for :meth:`occluded`."""

@@ -68,7 +68,7 @@ def compiling_compute(monkeypatch):
         kernel = _fresh_kernel()
         kernel(np.ones(3))
         time.sleep(0.05)
-        return MethodResult(np.full(surface.n_vertices, 0.5), 1000).ao, 1000, 0
+        return MethodResult(np.full(surface.n_vertices, 0.5), 1000).ao, 1000, 0, {}
 
     monkeypatch.setattr(pipeline, "_compute", compute)
 
@@ -108,7 +108,7 @@ def test_cli_says_it_compiles_unless_quiet(compiling_compute, cube_ply, tmp_path
 
 
 def test_nothing_compiled_nothing_said(cube_ply, tmp_path, monkeypatch):
-    monkeypatch.setattr(pipeline, "_compute", lambda s, m, o, p, v=None: (np.ones(s.n_vertices), 0, 0))
+    monkeypatch.setattr(pipeline, "_compute", lambda s, m, o, p, v=None: (np.ones(s.n_vertices), 0, 0, {}))
     result = CliRunner().invoke(main, ["bake", str(cube_ply), "-o", str(tmp_path / "a.ply")])
     assert result.exit_code == 0
     assert COMPILING not in result.stderr and "compiling" not in result.stderr

@@ -162,6 +162,8 @@ def write_bake(
     custom_data: Mapping[str, str | float | int | bool] | None = None,
     channel: str | None = None,
     overlay: bool | None = None,
+    attributes: Mapping[str, np.ndarray] | None = None,
+    display: np.ndarray | None = None,
 ) -> None:
     """Write a baked surface to ``path``, choosing PLY, USD or glTF from its suffix.
 
@@ -204,6 +206,17 @@ def write_bake(
         USD outputs of a USD input: True or None (default) writes an overlay, False a
         full flattened copy. True for another input is an error (see
         :func:`usd_output_mode`).
+    attributes : mapping of str to array, optional
+        Extra per-vertex values beside ``ao``, one row per surface vertex, written to
+        every output (:func:`aobake.io.common.check_attributes`). Their kind comes from
+        the name: ``bentNormal`` is a normal ``(n, 3)``, names starting ``irradiance``
+        linear colours ``(n, 3)``, any other name a float ``(n,)``. PLY: float32
+        properties ``name_x name_y name_z`` / ``name_r name_g name_b`` / ``name``; USD:
+        vertex primvars ``normal3f[]`` / ``color3f[]`` / ``float[]``; glTF: float
+        attributes ``_NAME`` (upper case) VEC3 / VEC3 / SCALAR.
+    display : (n, 3) float in [0, 1], optional
+        Linear RGB that ``color`` writes instead of grey ``ao`` (sRGB bytes in PLY,
+        linear ``displayColor``/``COLOR_0``); ignored without ``color``.
 
     Raises
     ------
@@ -211,7 +224,8 @@ def write_bake(
         Unsupported suffix, or ``overlay`` that does not apply (checked first).
     NumericalError
         ``ao`` is not ``(n,)`` for the surface's ``n`` vertices, non-finite, or
-        outside [0, 1] (checked by the writer before anything is opened).
+        outside [0, 1]; an attribute or ``display`` of the wrong shape, non-finite or
+        out of range (checked by the writer before anything is opened).
     InputError, OutputError, ValueError
         From the writer (bad topology, unwritable directory, bad options).
     """
@@ -226,6 +240,8 @@ def write_bake(
             up_axis=up_axis,
             meters_per_unit=meters_per_unit,
             custom_data=None if custom_data is None else dict(custom_data),
+            attributes=attributes,
+            display=display,
         )
         return
     if kind == "ply":
@@ -233,7 +249,8 @@ def write_bake(
         comments += [f"aobake up_axis={up_axis}", f"aobake meters_per_unit={meters_per_unit:g}"]
         kept = surface.metadata.get("ply")
         if kept is not None and kept.data.elements["vertex"].count == surface.n_vertices:
-            write_kept_ply(path, kept, ao, color=color, channel=channel, comments=comments, source=surface.source)
+            write_kept_ply(path, kept, ao, color=color, channel=channel, comments=comments,
+                           source=surface.source, attributes=attributes, display=display)  # fmt: skip
             return
         if channel is not None:
             raise InputError(surface.source, f"--channel {channel}: the mesh has no vertex colours to write into")
@@ -245,6 +262,8 @@ def write_bake(
             normals=surface.normals,
             color=color,
             comments=comments,
+            attributes=attributes,
+            display=display,
         )
     else:
         mode = usd_output_mode(path, usd_overlay.usd_source(surface) is not None, overlay)
@@ -257,6 +276,10 @@ def write_bake(
             "usdz": usd_overlay.write_usdz,
         }[mode]
         extra = {} if channel is None else {"channel": channel}
+        if attributes:
+            extra["attributes"] = attributes
+        if display is not None:
+            extra["display"] = display
         writer(
             path,
             surface,

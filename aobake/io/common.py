@@ -15,7 +15,7 @@ import sys
 import tempfile
 import threading
 import warnings
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from pathlib import Path
 
 import numpy as np
@@ -147,6 +147,79 @@ def check_ao(
             f"{where or name}: ao has shape {ao.shape} but the mesh has {n_vertices} vertices"
         )
     return ao.astype(np.float32)
+
+
+#: Kinds of extra per-vertex attributes, by name: ``bentNormal`` is a normal, names
+#: starting ``irradiance`` are linear colours; any other name is a float per vertex.
+NORMAL_ATTRIBUTES = ("bentNormal",)
+COLOR_PREFIX = "irradiance"
+
+#: Names an extra attribute may not take: what the writers already author.
+RESERVED_ATTRIBUTES = frozenset(
+    {"ao", "quality", "x", "y", "z", "nx", "ny", "nz", "red", "green", "blue", "alpha",
+     "displayColor", "displayOpacity", "normals", "points", "st"}
+)  # fmt: skip
+
+
+def attribute_kind(name: str) -> str:
+    """``"normal"``, ``"color"`` or ``"float"``: how an extra attribute is written
+    (USD ``normal3f[]``/``color3f[]``/``float[]``; PLY ``name_x``/``name_r``/``name``)."""
+    if name in NORMAL_ATTRIBUTES:
+        return "normal"
+    if name.startswith(COLOR_PREFIX):
+        return "color"
+    return "float"
+
+
+def check_attributes(
+    attributes: Mapping[str, np.ndarray] | None, n_vertices: int, where: str
+) -> dict[str, tuple[str, np.ndarray]]:
+    """Extra per-vertex attributes checked and ready to write: name -> (kind, float32).
+
+    A name is an identifier (letters, digits, ``_``; not starting with a digit), not one
+    the writers author themselves (``ao``, ``displayColor``...). Normals and colours are
+    ``(n, 3)``, floats ``(n,)``; every value finite, colours non-negative.
+
+    Raises
+    ------
+    NumericalError
+        A bad name, shape or value (checked before any file is opened).
+    """
+    out: dict[str, tuple[str, np.ndarray]] = {}
+    for name, values in (attributes or {}).items():
+        if not isinstance(name, str) or not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", name):
+            raise NumericalError(f"{where}: attribute name {name!r} is not an identifier")
+        if name in RESERVED_ATTRIBUTES:
+            raise NumericalError(f"{where}: attribute name {name!r} is already written by aobake")
+        kind = attribute_kind(name)
+        values = np.asarray(values)
+        shape = (n_vertices,) if kind == "float" else (n_vertices, 3)
+        if values.shape != shape or not np.issubdtype(values.dtype, np.number):
+            raise NumericalError(
+                f"{where}: attribute {name!r} has shape {values.shape}; a {kind} attribute "
+                f"needs {shape} numbers"
+            )
+        bad = ~np.isfinite(values)
+        if bad.any():
+            raise NumericalError(f"{name}: {int(bad.sum())} non-finite values; refusing to write")
+        if kind == "color" and values.size and values.min() < 0:
+            raise NumericalError(f"{name}: negative colour values (min {values.min():.6g}); refusing to write")
+        out[name] = (kind, np.ascontiguousarray(values, dtype=np.float32))
+    return out
+
+
+def check_display(display, n_vertices: int, where: str) -> np.ndarray | None:
+    """The ``(n, 3)`` linear RGB that ``--color`` writes instead of grey ``ao``, as
+    float32, or None; finite and within [0, 1] (raises :class:`NumericalError`)."""
+    if display is None:
+        return None
+    display = np.asarray(display)
+    if display.shape != (n_vertices, 3):
+        raise NumericalError(
+            f"{where}: display colours have shape {display.shape}; expected ({n_vertices}, 3)"
+        )
+    check_ao(display, "display colours")
+    return np.ascontiguousarray(display, dtype=np.float32)
 
 
 def _umask() -> int:

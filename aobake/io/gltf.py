@@ -25,9 +25,9 @@ from urllib.parse import quote, unquote
 
 import numpy as np
 
-from ..errors import InputError, OutputError
+from ..errors import InputError, NumericalError, OutputError
 from .color import CHANNELS, quantize, srgb_to_linear
-from .common import atomic_write, check_ao
+from .common import atomic_write, check_ao, check_attributes, check_display
 
 log = logging.getLogger(__name__)
 
@@ -329,6 +329,8 @@ def write_gltf(
     up_axis: str = "Y",
     meters_per_unit: float = 1.0,
     custom_data: dict | None = None,
+    attributes=None,
+    display=None,
 ) -> None:
     """Write ``ao`` as glTF (``.gltf``) or GLB (``.glb``), chosen by the suffix.
 
@@ -344,10 +346,16 @@ def write_gltf(
     turning Z-up into glTF's Y-up and scaling to metres. Provenance goes into
     ``asset.extras.aobake``.
 
+    ``attributes`` (name -> values, :func:`aobake.io.common.check_attributes`) become
+    float application attributes ``_NAME`` (upper case: ``_BENTNORMAL``, VEC3;
+    ``_IRRADIANCE``, VEC3 linear; a float, SCALAR) beside ``_AO``. ``display``, linear
+    ``(n, 3)`` colours, is what ``color`` writes as ``COLOR_0`` instead of grey.
+
     Raises
     ------
     NumericalError
-        ``ao`` is non-finite, outside [0, 1] or not one value per vertex.
+        ``ao``, ``attributes`` or ``display`` is non-finite, out of range or not one
+        value per vertex; two attribute names the same in upper case.
     InputError
         ``channel`` on a primitive (or a non-glTF input) without vertex colours.
     OutputError
@@ -355,12 +363,13 @@ def write_gltf(
     """
     path = Path(path)
     ao32 = check_ao(ao, n_vertices=surface.n_vertices, where=path.name)
+    extras = _extras(attributes, display, surface, path)
     source = surface.metadata.get("gltf_path")
     if source is not None:
         doc = read_document(source)
         gl = copy.deepcopy(doc.json)
         blob = _Blob(gl, len(gl.setdefault("buffers", [])))
-        _add_ao(doc, gl, blob, surface, ao32, color=color, channel=channel)
+        _add_ao(doc, gl, blob, surface, ao32, color=color, channel=channel, extras=extras)
     elif channel is not None and not ply_has_colors(surface):
         raise InputError(
             surface.source, f"--channel {channel}: the mesh has no vertex colours to write into"
@@ -378,6 +387,7 @@ def write_gltf(
             channel=channel,
             up_axis=up_axis,
             meters_per_unit=meters_per_unit,
+            extras=extras,
         )
     asset = gl.setdefault("asset", {"version": "2.0"})
     extras = asset.setdefault("extras", {})
@@ -397,9 +407,35 @@ def write_gltf(
         raise OutputError(f"{path.name}: cannot write ({exc.strerror or exc})") from exc
 
 
+def attribute_name(name: str) -> str:
+    """The glTF application attribute of an extra attribute: ``_`` + upper case."""
+    return "_" + name.upper()
+
+
+def _extras(attributes, display, surface, path: Path):
+    """Checked extra attributes keyed by their glTF names, and display colours."""
+    n = surface.n_vertices
+    checked = check_attributes(attributes, n, path.name)
+    named = {attribute_name(name): values for name, (_, values) in checked.items()}
+    if len(named) != len(checked) or "_AO" in named:
+        raise NumericalError(f"{path.name}: attribute names {sorted(checked)} clash in glTF's upper case")
+    return named, check_display(display, n, path.name)
+
+
+def _put_extras(blob: _Blob, attributes: dict, extras, s: slice, color: bool, ao_values) -> None:
+    """The extra attributes' accessors and, with ``color``, COLOR_0 (display or grey)."""
+    named, display = extras
+    for key, values in named.items():
+        attributes[key] = blob.accessor(values[s])
+    if color:
+        shown = np.repeat(ao_values[:, None], 3, axis=1) if display is None else display[s]
+        attributes["COLOR_0"] = blob.accessor(np.ascontiguousarray(shown, dtype=np.float32))
+
+
 def _add_ao(
-    doc: Document, gl: dict, blob: _Blob, surface, ao32, *, color: bool, channel: str | None
-) -> None:
+    doc: Document, gl: dict, blob: _Blob, surface, ao32, *, color: bool, channel: str | None,
+    extras=({}, None),
+) -> None:  # fmt: skip
     """``_AO`` (and colours) on every matched primitive; instanced meshes copied per node."""
     owner: dict[int, int] = {}  # source mesh -> the node that keeps it
     node_mesh: dict[int, int] = {}  # node -> the mesh it now uses
@@ -418,8 +454,8 @@ def _add_ao(
             attributes["COLOR_0"] = _packed_colors(
                 doc, blob, attributes.get("COLOR_0"), values, channel
             )
-        elif color:
-            attributes["COLOR_0"] = blob.accessor(np.repeat(values[:, None], 3, axis=1))
+        _put_extras(blob, attributes, extras, slice(part.vertex_start, part.vertex_stop),
+                    color and channel is None, values)  # fmt: skip
 
 
 def _packed_colors(doc: Document, blob: _Blob, index: int | None, values, channel: str) -> int:
@@ -482,7 +518,9 @@ def _ply_attributes(blob: _Blob, surface, part, channel: str | None) -> dict:
     return out
 
 
-def _new_document(gl, blob, surface, ao32, *, color, channel, up_axis, meters_per_unit) -> None:
+def _new_document(
+    gl, blob, surface, ao32, *, color, channel, up_axis, meters_per_unit, extras=({}, None)
+) -> None:
     """One node, mesh and primitive per part, positions relative to the part's centre; a
     PLY input's UVs and colours come along (:func:`_ply_attributes`)."""
     children = []
@@ -503,10 +541,9 @@ def _new_document(gl, blob, surface, ao32, *, color, channel, up_axis, meters_pe
             colors = attributes.pop("COLOR_0")
             colors[:, CHANNELS[channel]] = quantize(ao32[s], colors.dtype)
             attributes["COLOR_0"] = blob.accessor(colors, normalized=colors.dtype.kind == "u")
-        elif color:
-            attributes["COLOR_0"] = blob.accessor(np.repeat(ao32[s, None], 3, axis=1))
-        elif "COLOR_0" in attributes:
+        elif not color and "COLOR_0" in attributes:
             attributes["COLOR_0"] = blob.accessor(attributes["COLOR_0"])
+        _put_extras(blob, attributes, extras, s, color and channel is None, ao32[s])
         faces = surface.faces[part.face_start : part.face_stop] - part.vertex_start
         indices = blob.accessor(faces.reshape(-1).astype(np.uint32), target=_ELEMENT_ARRAY_BUFFER)
         gl["meshes"].append(

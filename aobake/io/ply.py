@@ -17,7 +17,7 @@ import numpy as np
 from ..errors import InputError, OutputError
 from ..mesh import RawPart, fan_triangulate
 from .color import CHANNELS, quantize, srgb_bytes
-from .common import atomic_write, check_ao, output_name
+from .common import atomic_write, check_ao, check_attributes, check_display, output_name
 from .plyparse import PlyData, PlyList, read_bytes, read_ply, read_ply_header, read_ply_types
 
 #: Largest index a PLY ``int`` (int32) face index can hold.
@@ -30,6 +30,15 @@ PLY_NAMES = {"i1": "char", "u1": "uchar", "i2": "short", "u2": "ushort", "i4": "
 
 #: Vertex colour properties, in channel order (R G B A).
 COLOR_NAMES = ("red", "green", "blue", "alpha")
+
+#: Suffixes of the PLY properties of a three-component extra attribute, by kind.
+_COMPONENT_SUFFIXES = {"normal": ("_x", "_y", "_z"), "color": ("_r", "_g", "_b")}
+
+
+def property_names(name: str, kind: str) -> tuple[str, ...]:
+    """The PLY vertex properties an extra attribute is written as: ``bentNormal_x ...``
+    for a normal, ``irradiance_r ...`` for a colour, ``name`` for a float."""
+    return tuple(name + suffix for suffix in _COMPONENT_SUFFIXES.get(kind, ("",)))
 
 
 def read_parts(path: Path, data: bytes, metadata: dict | None = None) -> list[RawPart]:
@@ -79,6 +88,8 @@ def write_ply(
     normals=None,
     color: bool = False,
     comments: Iterable[str] = (),
+    attributes=None,
+    display=None,
 ) -> None:
     """Write a binary little-endian PLY with a float32 per-vertex ``ao`` property.
 
@@ -110,12 +121,18 @@ def write_ply(
         Also write ``ao`` as grey ``red green blue`` so viewers show it without setup.
     comments : iterable of str
         Header comment lines (no newlines), written in order after the format line.
+    attributes : mapping of str to array, optional
+        Extra per-vertex values (:func:`aobake.io.common.check_attributes`), float32
+        properties after ``quality``: ``name_x name_y name_z`` for normals, ``name_r
+        name_g name_b`` for colours, ``name`` for floats.
+    display : (n, 3) float in [0, 1], optional
+        Linear colours that ``color`` writes (sRGB bytes) instead of grey ``ao``.
 
     Raises
     ------
     NumericalError
-        ``ao`` is non-finite, outside [0, 1], or not one value per vertex (checked
-        before anything is opened).
+        ``ao``, ``attributes`` or ``display`` is non-finite, out of range, or not one
+        value per vertex (checked before anything is opened).
     InputError
         A face references a vertex outside ``[0, n)``.
     OutputError
@@ -130,6 +147,8 @@ def write_ply(
         raise ValueError(f"positions must have shape (n, 3), got {positions.shape}")
     n = positions.shape[0]
     ao32 = check_ao(ao, n_vertices=n, where=output_name(path))
+    extras = check_attributes(attributes, n, output_name(path))
+    display32 = check_display(display, n, output_name(path))
     faces = np.asarray(faces)
     if faces.size == 0:
         faces = faces.reshape(0, 3)
@@ -162,6 +181,7 @@ def write_ply(
             raise ValueError(f"normals have shape {normals.shape}, positions {positions.shape}")
         fields += [("nx", "<f4"), ("ny", "<f4"), ("nz", "<f4")]
     fields += [("ao", "<f4"), ("quality", "<f4")]
+    fields += [(column, "<f4") for name, (kind, _) in extras.items() for column in property_names(name, kind)]
     if color:
         fields += [("red", "u1"), ("green", "u1"), ("blue", "u1")]
 
@@ -179,7 +199,13 @@ def write_ply(
         vertex["nx"], vertex["ny"], vertex["nz"] = n32.T
     vertex["ao"] = ao32
     vertex["quality"] = ao32
-    if color:
+    for name, (kind, values) in extras.items():
+        for k, column in enumerate(property_names(name, kind)):
+            vertex[column] = values if values.ndim == 1 else values[:, k]
+    if color and display32 is not None:
+        for k, column in enumerate(COLOR_NAMES[:3]):
+            vertex[column] = srgb_bytes(display32[:, k])
+    elif color:
         vertex["red"] = vertex["green"] = vertex["blue"] = srgb_bytes(ao32)
 
     k = faces.shape[1]
@@ -310,6 +336,8 @@ def write_kept_ply(
     channel: str | None = None,
     comments: Iterable[str] = (),
     source: str = "input",
+    attributes=None,
+    display=None,
 ) -> None:
     """Write a PLY input back whole, with ``ao`` (and ``quality``) added to its vertices.
 
@@ -320,7 +348,9 @@ def write_kept_ply(
     uchar when absent; ``alpha`` untouched). ``channel`` (``"R"``, ``"G"``, ``"B"`` or
     ``"A"``) writes linear ``ao`` into one channel of the input's colours and keeps the
     others bit-identical (an absent ``alpha`` is added in the colours' type). The input's comments are kept except its own
-    ``aobake ...`` lines, which ``comments`` replace.
+    ``aobake ...`` lines, which ``comments`` replace. ``attributes`` are float32
+    properties (see :func:`write_ply`), replacing the input's of the same names in
+    place or appended; ``display`` is what ``color`` writes instead of grey.
 
     Raises
     ------
@@ -334,6 +364,8 @@ def write_kept_ply(
     path = Path(path)
     vertex = kept.data.elements["vertex"]
     ao32 = check_ao(ao, n_vertices=vertex.count, where=path.name)
+    extras = check_attributes(attributes, vertex.count, path.name)
+    display32 = check_display(display, vertex.count, path.name)
     types = {name: list(props) for name, props in kept.types.items()}
     columns = {name: dict(element.properties) for name, element in kept.data.elements.items()}
     props, vcols = types["vertex"], columns["vertex"]
@@ -346,18 +378,24 @@ def write_kept_ply(
             dtype = next(t for n, t, _ in props if n == name)
         vcols[name] = quantize(values, dtype) if dtype.kind in "iu" else values.astype(dtype)
 
-    for name in ("ao", "quality"):  # replaced in place as float32, or appended
+    def put_float(name: str, values: np.ndarray) -> None:  # replaced in place as float32, or appended
         props[:] = [(n, t, c) if n != name else (n, np.dtype(np.float32), None) for n, t, c in props]
-        put(name, ao32, np.float32)
+        put(name, values, np.float32)
+
+    for name in ("ao", "quality"):
+        put_float(name, ao32)
+    for name, (kind, values) in extras.items():
+        for k, column in enumerate(property_names(name, kind)):
+            put_float(column, values if values.ndim == 1 else values[:, k])
     if channel is not None:
         found = vertex_colors(kept)
         if found is None:
             raise InputError(source, f"--channel {channel}: the mesh has no vertex colours (red green blue)")
         put(COLOR_NAMES[CHANNELS[channel]], ao32.astype(np.float64), found[1])
     elif color:
-        encoded = srgb_bytes(ao32) / 255.0  # the 8-bit sRGB value, at any type's scale
-        for name in COLOR_NAMES[:3]:
-            put(name, encoded, np.uint8)
+        shown = np.repeat(ao32[:, None], 3, axis=1) if display32 is None else display32
+        for k, name in enumerate(COLOR_NAMES[:3]):
+            put(name, srgb_bytes(shown[:, k]) / 255.0, np.uint8)  # 8-bit sRGB at any type's scale
     header = ["ply", "format binary_little_endian 1.0"]
     own = [c for c in kept.data.header.comments if not c.startswith("aobake ")]
     header += [f"comment {c}" if c else "comment" for c in own + [str(c) for c in comments]]

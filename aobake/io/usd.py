@@ -27,7 +27,15 @@ import numpy as np
 from .._types import FloatArray
 from ..errors import InputError, OutputError
 from ..mesh import RawPart, fan_triangulate, reverse_polygons, transformed_part
-from .common import atomic_write, check_ao, check_input_file, foreign_stderr, output_name
+from .common import (
+    atomic_write,
+    check_ao,
+    check_attributes,
+    check_display,
+    check_input_file,
+    foreign_stderr,
+    output_name,
+)
 
 #: Largest index a USD ``int[]`` (int32) can hold.
 INT32_MAX = int(np.iinfo(np.int32).max)
@@ -53,6 +61,8 @@ def write_usd(
     up_axis: str = "Y",
     meters_per_unit: float = 1.0,
     custom_data: Mapping[str, str | float | int | bool] | None = None,
+    attributes: Mapping[str, np.ndarray] | None = None,
+    display=None,
 ) -> None:
     """Write a USD stage with one ``UsdGeom.Mesh`` per part and a vertex primvar ``ao``.
 
@@ -85,12 +95,18 @@ def write_usd(
         Recorded as ``customData["aobake"]`` on ``/Root`` and on every mesh (method,
         parameters, seed, aobake version...), and as the layer's
         ``customLayerData["aobake"]``.
+    attributes : mapping of str to array, optional
+        Extra per-vertex values (:func:`aobake.io.common.check_attributes`), each a
+        vertex primvar of its name (:func:`primvar_value`: ``normal3f[]``,
+        ``color3f[]`` or ``float[]``).
+    display : (n, 3) float in [0, 1], optional
+        Linear colours ``color`` authors as ``displayColor`` instead of grey ``ao``.
 
     Raises
     ------
     NumericalError
-        ``ao`` is non-finite, outside [0, 1], or not one value per vertex (checked
-        before anything is opened).
+        ``ao``, ``attributes`` or ``display`` is non-finite, out of range, or not one
+        value per vertex (checked before anything is opened).
     InputError
         A part's topology is inconsistent (counts < 3, sum of counts different from
         the number of indices, indices outside the part).
@@ -102,6 +118,8 @@ def write_usd(
     """
     path = Path(path)
     ao32 = check_ao(ao, n_vertices=surface.n_vertices, where=output_name(path))
+    extras = check_attributes(attributes, surface.n_vertices, output_name(path))
+    display32 = check_display(display, surface.n_vertices, output_name(path))
     up = str(up_axis).upper()
     if up not in UP_AXES:
         raise ValueError(f"up_axis must be 'Y' or 'Z', got {up_axis!r}")
@@ -112,6 +130,10 @@ def write_usd(
         )
     data = _clean_custom_data(custom_data)
     meshes = _mesh_arrays(path, surface, ao32)
+    for arrays, part in zip(meshes, surface.parts, strict=True):
+        s = slice(part.vertex_start, part.vertex_stop)
+        arrays["extras"] = {name: (kind, values[s]) for name, (kind, values) in extras.items()}
+        arrays["display"] = None if display32 is None else display32[s]
 
     try:
         with atomic_write(path) as tmp, foreign_stderr(output_name(path)):
@@ -394,12 +416,29 @@ def _author_mesh(
         AO_PRIMVAR, Sdf.ValueTypeNames.FloatArray, UsdGeom.Tokens.vertex
     )
     ao_primvar.Set(Vt.FloatArray.FromNumpy(arrays["ao"]))
+    for name, (kind, values) in arrays.get("extras", {}).items():
+        value_type, value = primvar_value(kind, values)
+        primvars.CreatePrimvar(name, value_type, UsdGeom.Tokens.vertex).Set(value)
     if color:
-        grey = np.repeat(arrays["ao"][:, None], 3, axis=1)
+        shown = arrays.get("display")
+        if shown is None:
+            shown = np.repeat(arrays["ao"][:, None], 3, axis=1)
         display = mesh.CreateDisplayColorPrimvar(UsdGeom.Tokens.vertex)
-        display.Set(Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(grey, dtype=np.float32)))
+        display.Set(Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(shown, dtype=np.float32)))
     if custom_data:
         mesh.GetPrim().SetCustomDataByKey(CUSTOM_DATA_KEY, custom_data)
+
+
+def primvar_value(kind: str, values: np.ndarray):
+    """``(Sdf value type, Vt array)`` of an extra attribute's values: ``normal3f[]`` for
+    a normal, ``color3f[]`` (linear) for a colour, ``float[]`` for a float."""
+    from pxr import Sdf, Vt
+
+    values = np.ascontiguousarray(values, dtype=np.float32)
+    if kind == "float":
+        return Sdf.ValueTypeNames.FloatArray, Vt.FloatArray.FromNumpy(values)
+    value_type = Sdf.ValueTypeNames.Normal3fArray if kind == "normal" else Sdf.ValueTypeNames.Color3fArray
+    return value_type, Vt.Vec3fArray.FromNumpy(values)
 
 
 # -- reading meshes ---------------------------------------------------------------------

@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import FormatError, InputError, OutputError
-from .common import atomic_write, check_ao
+from .common import atomic_write, check_ao, check_attributes, check_display
 
 #: Stage metadata the overlay copies from the source's root layer: a stage takes them
 #: from its root layer only, and a sublayer whose timeCodesPerSecond differs from the
@@ -66,6 +66,8 @@ def write_usd_overlay(
     meters_per_unit: float = 1.0,
     custom_data: Mapping | None = None,
     channel: str | None = None,
+    attributes: Mapping | None = None,
+    display=None,
 ) -> None:
     """Write a layer that sublayers the surface's USD source and adds ``primvars:ao``.
 
@@ -89,6 +91,11 @@ def write_usd_overlay(
         Write ``ao`` (linear) into this channel of each mesh's own colours:
         ``displayColor`` for R, G, B (the other two kept bit-identical), a vertex
         ``displayOpacity`` for A (see :func:`check_channel`).
+    attributes : mapping of str to array, optional
+        Extra per-vertex values, each a vertex primvar of its name
+        (:func:`aobake.io.usd.primvar_value`).
+    display : (n, 3) float in [0, 1], optional
+        Linear colours ``color`` authors as ``displayColor`` instead of grey ``ao``.
 
     Raises
     ------
@@ -101,9 +108,10 @@ def write_usd_overlay(
     path = Path(path)
     source = _checked_source(path, surface)
     ao32 = check_ao(ao, n_vertices=surface.n_vertices, where=path.name)
+    extras = _extras(attributes, display, surface, path)
     relative = _relative(source, path.resolve().parent)
     layer = _overlay_layer(
-        source, relative, surface, ao32, color, up_axis, meters_per_unit, custom_data, path, channel
+        source, relative, surface, ao32, color, up_axis, meters_per_unit, custom_data, path, channel, extras
     )
     _export(layer, path)
 
@@ -118,6 +126,8 @@ def write_usd_copy(
     meters_per_unit: float = 1.0,
     custom_data: Mapping | None = None,
     channel: str | None = None,
+    attributes: Mapping | None = None,
+    display=None,
 ) -> None:
     """Write the surface's USD source flattened into one layer, with ``primvars:ao`` added.
 
@@ -129,8 +139,9 @@ def write_usd_copy(
     path = Path(path)
     source = _checked_source(path, surface)
     ao32 = check_ao(ao, n_vertices=surface.n_vertices, where=path.name)
+    extras = _extras(attributes, display, surface, path)
     flat = _flattened(
-        source, path, surface, ao32, color, up_axis, meters_per_unit, custom_data, channel
+        source, path, surface, ao32, color, up_axis, meters_per_unit, custom_data, channel, extras
     )
     _export(flat, path)
 
@@ -145,6 +156,8 @@ def write_usdz(
     meters_per_unit: float = 1.0,
     custom_data: Mapping | None = None,
     channel: str | None = None,
+    attributes: Mapping | None = None,
+    display=None,
 ) -> None:
     """Write a self-contained ``.usdz`` package: for a USD input its flattened copy with
     ``primvars:ao`` (:func:`write_usd_copy`) and the textures it uses, else aobake's own
@@ -156,6 +169,7 @@ def write_usdz(
     path = Path(path)
     source = usd_source(surface)
     ao32 = check_ao(ao, n_vertices=surface.n_vertices, where=path.name)
+    extras = _extras(attributes, display, surface, path)
     name = f"{Path(str(surface.source)).stem or 'scene'}.usdc"
     with atomic_write(path) as tmp, tempfile.TemporaryDirectory(dir=tmp.parent) as work:
         inner = Path(work) / name
@@ -174,11 +188,13 @@ def write_usdz(
                 up_axis=up_axis,
                 meters_per_unit=meters_per_unit,
                 custom_data=custom_data,
+                attributes=attributes,
+                display=display,
             )
         else:
             _checked_source(path, surface)
             flat = _flattened(
-                source, path, surface, ao32, color, up_axis, meters_per_unit, custom_data, channel
+                source, path, surface, ao32, color, up_axis, meters_per_unit, custom_data, channel, extras
             )
             _export(flat, inner)
             del flat
@@ -215,12 +231,20 @@ def _relative(source: Path, directory: Path) -> str:
         return source.as_posix()
 
 
-def _flattened(source, path, surface, ao32, color, up_axis, meters_per_unit, custom_data, channel):
+def _extras(attributes, display, surface, path: Path):
+    """Checked extra attributes and display colours: ``(dict, array or None)``."""
+    n = surface.n_vertices
+    return check_attributes(attributes, n, path.name), check_display(display, n, path.name)
+
+
+def _flattened(
+    source, path, surface, ao32, color, up_axis, meters_per_unit, custom_data, channel, extras=({}, None)
+):
     """The overlay (sublayering the absolute source) composed and flattened to one layer."""
     from pxr import Usd
 
     layer = _overlay_layer(
-        source, str(source), surface, ao32, color, up_axis, meters_per_unit, custom_data, path, channel
+        source, str(source), surface, ao32, color, up_axis, meters_per_unit, custom_data, path, channel, extras
     )
     stage = Usd.Stage.Open(layer)
     flat = stage.Flatten()
@@ -233,12 +257,15 @@ def _flattened(source, path, surface, ao32, color, up_axis, meters_per_unit, cus
 
 
 def _overlay_layer(
-    source, sublayer, surface, ao32, color, up_axis, meters_per_unit, custom_data, out, channel=None
-):
+    source, sublayer, surface, ao32, color, up_axis, meters_per_unit, custom_data, out, channel=None,
+    extras=({}, None),
+):  # fmt: skip
     """An anonymous layer: ``sublayer`` below, ``over`` prims with the primvars above."""
     from pxr import Sdf, Usd, UsdGeom, Vt
 
-    from .usd import _clean_custom_data, _usd_value
+    from .usd import _clean_custom_data, _usd_value, primvar_value
+
+    attributes, display = extras
 
     data = _clean_custom_data(custom_data)
     time = surface.metadata.get("time")
@@ -271,13 +298,17 @@ def _overlay_layer(
             _author_primvar(
                 spec, prim, "ao", Sdf.ValueTypeNames.FloatArray, Vt.FloatArray.FromNumpy(values)
             )
+            s = slice(part.vertex_start, part.vertex_stop)
+            for name, (kind, extra) in attributes.items():
+                _author_primvar(spec, prim, name, *primvar_value(kind, extra[s]))
             if channel is not None:
                 packed = _channel_primvar(prim, code, values, channel)
                 if isinstance(packed, str):
                     raise InputError(surface.source, f"--channel {channel}: {packed}")
                 _author_primvar(spec, prim, *packed)
             if color:
-                grey = np.ascontiguousarray(np.repeat(values[:, None], 3, axis=1))
+                shown = np.repeat(values[:, None], 3, axis=1) if display is None else display[s]
+                grey = np.ascontiguousarray(shown, dtype=np.float32)
                 _author_primvar(
                     spec,
                     prim,

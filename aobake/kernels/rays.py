@@ -107,6 +107,44 @@ def ground_rays(org, dirs, axis, height, reach, hit):
             hit[r] = 0
 
 
+#: Fixed-point scale of the escaping-direction sums: integer sums are exact in any
+#: order (bit-identical for any thread count), and 2**32 rays of 2**30 fit in int64.
+ESCAPE_SCALE = 2.0**30
+
+
+@njit(cache=True, nogil=True)
+def sum_escapes(ids, dirs, per, vertex_index, normals, weigh, sums):
+    """Add each vertex's escaping ray directions (``ids == -1``) to ``sums[vertex]``.
+
+    ``sums`` (n, 3) int64 holds fixed-point sums (:data:`ESCAPE_SCALE`). ``weigh``:
+    weight each direction by its cosine to the normal (uniformly sampled rays), so the
+    sum estimates the cosine-weighted mean either way; a vertex without a normal is
+    unweighted. Chunks never share a vertex slot within one call (see :func:`count_hits`).
+    """
+    for a in range(vertex_index.shape[0]):
+        v = vertex_index[a]
+        nx, ny, nz = normals[v, 0], normals[v, 1], normals[v, 2]
+        cosine = weigh and (nx != 0.0 or ny != 0.0 or nz != 0.0)
+        sx = np.int64(0)
+        sy = np.int64(0)
+        sz = np.int64(0)
+        base = a * per
+        for s in range(per):
+            r = base + s
+            if ids[r] != -1:
+                continue
+            dx, dy, dz = np.float64(dirs[r, 0]), np.float64(dirs[r, 1]), np.float64(dirs[r, 2])
+            w = ESCAPE_SCALE
+            if cosine:
+                w *= max(dx * nx + dy * ny + dz * nz, 0.0)
+            sx += np.int64(np.rint(w * dx))
+            sy += np.int64(np.rint(w * dy))
+            sz += np.int64(np.rint(w * dz))
+        sums[v, 0] += sx
+        sums[v, 1] += sy
+        sums[v, 2] += sz
+
+
 @njit(cache=True)
 def vertex_keys(seed, n):
     """(n,) uint64 per-vertex keys: a hash of (seed, vertex index)."""

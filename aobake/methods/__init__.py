@@ -20,6 +20,10 @@ METHODS = ("embree", "bunnell")
 #: cluster tree couple every vertex.
 SPLITTABLE = ("embree",)
 
+#: Methods that compute a lit scene's light (direct and bounced) besides AO:
+#: ``run_light(surface, shading, options, progress, indirect=...)``.
+LIGHTING = ("embree",)
+
 
 @dataclass(frozen=True)
 class MethodResult:
@@ -33,11 +37,15 @@ class MethodResult:
         Rays cast in total (0 for methods that cast none).
     contacts : int
         Vertices whose starting point was moved off a touching surface.
+    attributes : dict of str to array
+        Extra per-vertex results to write beside ``ao`` (``bentNormal`` (n, 3)), one row
+        per vertex baked (:func:`aobake.io.write_bake`).
     """
 
     ao: Any
     n_rays: int = 0
     contacts: int = 0
+    attributes: Any = None
 
 
 def _check_name(name: str) -> None:
@@ -76,3 +84,15 @@ def run(name: str, surface, options=None, progress=None, *, vertices=None, groun
     if name not in SPLITTABLE:
         raise ValueError(f"{name} couples all vertices and cannot bake a vertex range")
     return module.run(surface, opts, progress, vertices=vertices, **extra)
+
+
+def run_light(name: str, surface, shading, options=None, progress=None, *, indirect: bool = True, **changes):
+    """Irradiance of ``surface`` lit by ``shading`` (:class:`aobake.shading.Shading`) with
+    method ``name`` (one of :data:`LIGHTING`): its ``LightResult`` (``direct``,
+    ``indirect``, ``error`` (n, 3), ray counts, per-light statistics). ``indirect=False``:
+    direct light only, whatever the options' ``bounces``."""
+    opts = make_options(name, options, **changes)
+    if name not in LIGHTING:
+        raise ValueError(f"--method {name} computes ambient occlusion only; light needs --method {LIGHTING[0]}")
+    module = importlib.import_module(f"{__name__}.{name}")
+    return module.run_light(surface, shading, opts, progress, indirect=indirect)

@@ -45,12 +45,16 @@ class EmbreeAO:
         Wall time of the estimate (scene build included).
     contacts : int
         Vertices whose origin offset would have crossed another surface and was mirrored.
+    bent_normals : (n, 3) float64 or None
+        With ``bent_normals=True``: the cosine-weighted mean direction of the escaping
+        rays, normalised (world space); a vertex whose every ray hit gets its normal.
     """
 
     ao: AOArray
     rays: IndexArray
     seconds: float
     contacts: int
+    bent_normals: np.ndarray | None = None
 
     @property
     def n_rays(self) -> int:
@@ -171,7 +175,8 @@ def run(
 ) -> MethodResult:
     """The method interface (:mod:`aobake.methods`); ``vertices``, ``ground``: see :func:`estimate`."""
     result = estimate(surface, options, progress, vertices=vertices, ground=ground)
-    return MethodResult(result.ao, result.n_rays, result.contacts)
+    extra = {} if result.bent_normals is None else {"bentNormal": result.bent_normals}
+    return MethodResult(result.ao, result.n_rays, result.contacts, extra)
 
 
 def estimate(
@@ -225,6 +230,8 @@ def estimate(
 
     hits = np.zeros(n, dtype=np.int64)
     cast = np.zeros(n, dtype=np.int64)
+    escapes = np.zeros((n, 3), dtype=np.int64) if options.bent_normals else None
+    weigh = options.measure != "cosine"
     active = np.arange(lo, hi, dtype=np.int64)
     progress.start(active.size * n_rays, "embree")
 
@@ -244,6 +251,8 @@ def estimate(
             ids = np.where(on_plane != 0, 0, ids)
         with lock:  # a vertex's rays may span chunks: integer sums, any order
             _k.count_hits(ids, j1 - j0, vertex_index, hits)
+            if escapes is not None:
+                _k.sum_escapes(ids, dirs, j1 - j0, vertex_index, normals, weigh, escapes)
         return k
 
     pool = ThreadPoolExecutor(max_workers=threads)
@@ -277,4 +286,16 @@ def estimate(
     ao = 1.0 - hits / denom
     if not np.isfinite(ao).all() or ao.min() < 0.0 or ao.max() > 1.0:
         raise NumericalError(f"{surface.source}: embree produced AO outside [0, 1]")
-    return EmbreeAO(ao=ao, rays=cast, seconds=time.perf_counter() - t0, contacts=contacts)
+    bent = None if escapes is None else bent_from_sums(escapes[lo:hi], normals[lo:hi])
+    return EmbreeAO(ao=ao, rays=cast, seconds=time.perf_counter() - t0, contacts=contacts, bent_normals=bent)
+
+
+def bent_from_sums(sums: np.ndarray, normals: np.ndarray) -> np.ndarray:
+    """Unit bent normals from the fixed-point escape sums; the normal where no ray
+    escaped (a zero row where the vertex has no normal either)."""
+    total = sums.astype(np.float64)
+    length = np.linalg.norm(total, axis=1)
+    open_ = length > 0
+    out = np.array(normals, dtype=np.float64)
+    out[open_] = total[open_] / length[open_, None]
+    return out

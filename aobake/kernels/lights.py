@@ -1,0 +1,530 @@
+"""Light sampling and path bookkeeping for the ray-traced irradiance reference.
+
+Serial ``nogil`` kernels run one per worker thread on its own chunk of vertices
+(:mod:`aobake.methods.embree.light` drives them around Embree). Every sample is a pure
+function of (vertex key, component, sample index), so results do not depend on threads.
+
+A light is one row of ``params`` (float64, see :data:`P_*`) and one code in ``kinds``
+(:data:`KIND_CODES`); points are in the tracer's recentred frame (mesh units).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from ..constants import FASTMATH
+from . import rng, warps
+
+KIND_CODES = {"distant": 0, "point": 1, "spot": 2, "sphere": 3, "rect": 4, "disk": 5, "dome": 6}
+DISTANT, POINT, SPOT, SPHERE, RECT, DISK, DOME = range(7)
+
+# Columns of a light's parameter row.
+P_VALUE = 0  # 3: E_perp, I or L (RGB)
+P_POS = 3  # 3: position (recentred)
+P_DIR = 6  # 3: distant: towards the light; spot: the way it shines
+P_U = 9  # 3: rect half-edge u
+P_V = 12  # 3: rect half-edge v
+P_NORMAL = 15  # 3: rect/disk emitting side
+P_RADIUS = 18
+P_COS_HALF = 19  # distant: cos(angle / 2)
+P_COS_INNER = 20
+P_COS_OUTER = 21
+P_RANGE = 22
+P_SHADOW = 23  # 1.0: casts shadow rays
+P_AREA = 24
+N_PARAMS = 25
+
+# Why a receiver is not lit by a light (reach codes).
+REACH_OK, REACH_BEHIND, REACH_CONE, REACH_RANGE, REACH_NONE = range(5)
+
+# Component of an emitter sample: the last one after the lights.
+_TWO_PI = 2.0 * math.pi
+
+
+@njit(cache=True, fastmath=FASTMATH, inline="always")
+def _dot(ax, ay, az, bx, by, bz):
+    return ax * bx + ay * by + az * bz
+
+
+@njit(cache=True, fastmath=FASTMATH, nogil=True)
+def reach_code(kind, p, x, y, z, nx, ny, nz):
+    """Whether the light row ``p`` can light a receiver at (x, y, z) with unit normal n:
+    REACH_OK, else the first failing test of range, tangent plane (or emitting side),
+    spot cone; REACH_NONE for a receiver without a normal. Same tests as
+    :func:`aobake.plan.reach`."""
+    if nx == 0.0 and ny == 0.0 and nz == 0.0:
+        return REACH_NONE
+    if kind == DOME:
+        return REACH_OK
+    if kind == DISTANT:
+        sin_half = math.sqrt(max(0.0, 1.0 - p[P_COS_HALF] * p[P_COS_HALF]))
+        if _dot(nx, ny, nz, p[P_DIR], p[P_DIR + 1], p[P_DIR + 2]) > -sin_half:
+            return REACH_OK
+        return REACH_BEHIND
+    tx, ty, tz = p[P_POS] - x, p[P_POS + 1] - y, p[P_POS + 2] - z
+    dist = math.sqrt(tx * tx + ty * ty + tz * tz)
+    if not dist < p[P_RANGE]:
+        return REACH_RANGE
+    facing = _dot(nx, ny, nz, tx, ty, tz)
+    if kind == POINT or kind == SPOT:
+        if not facing > 0.0:
+            return REACH_BEHIND
+        if kind == SPOT:
+            cos_axis = -_dot(tx, ty, tz, p[P_DIR], p[P_DIR + 1], p[P_DIR + 2]) / dist
+            if not cos_axis > p[P_COS_OUTER]:
+                return REACH_CONE
+        return REACH_OK
+    if kind == SPHERE:
+        if facing > -p[P_RADIUS] and dist > p[P_RADIUS]:
+            return REACH_OK
+        return REACH_BEHIND
+    mx, my, mz = p[P_NORMAL], p[P_NORMAL + 1], p[P_NORMAL + 2]
+    if not -_dot(tx, ty, tz, mx, my, mz) > 0.0:
+        return REACH_BEHIND
+    if kind == RECT:
+        for su in (-1.0, 1.0):
+            for sv in (-1.0, 1.0):
+                cx = tx + su * p[P_U] + sv * p[P_V]
+                cy = ty + su * p[P_U + 1] + sv * p[P_V + 1]
+                cz = tz + su * p[P_U + 2] + sv * p[P_V + 2]
+                if _dot(nx, ny, nz, cx, cy, cz) > 0.0:
+                    return REACH_OK
+        return REACH_BEHIND
+    # disk: its farthest point along n is the centre plus radius times n's in-plane part
+    nm = _dot(nx, ny, nz, mx, my, mz)
+    ix, iy, iz = nx - nm * mx, ny - nm * my, nz - nm * mz
+    extent = p[P_RADIUS] * math.sqrt(ix * ix + iy * iy + iz * iz)
+    if facing + extent > 0.0:
+        return REACH_OK
+    return REACH_BEHIND
+
+
+@njit(cache=True, fastmath=FASTMATH, nogil=True)
+def _cone_direction(ax, ay, az, cos_max, u0, u1):
+    """Uniform direction in the cone of half-angle acos(cos_max) about unit a."""
+    c = 1.0 - u0 * (1.0 - cos_max)
+    s = math.sqrt(max(0.0, 1.0 - c * c))
+    phi = _TWO_PI * u1
+    x, y = s * math.cos(phi), s * math.sin(phi)
+    return warps.to_world(x, y, c, ax, ay, az)
+
+
+@njit(cache=True, fastmath=FASTMATH, nogil=True)
+def sample_light(kind, p, ox, oy, oz, nx, ny, nz, u0, u1):
+    """One sample of light row ``p`` seen from o with unit normal n.
+
+    Returns (wr, wg, wb, dx, dy, dz, dist): the irradiance estimate if the unit direction
+    d is unoccluded up to ``dist`` (inf: to infinity); w = 0 when the sample adds
+    nothing (behind the tangent plane or the light, outside the cone: no ray then).
+    """
+    vr, vg, vb = p[P_VALUE], p[P_VALUE + 1], p[P_VALUE + 2]
+    if kind == DISTANT:
+        ax, ay, az = p[P_DIR], p[P_DIR + 1], p[P_DIR + 2]
+        cos_half = p[P_COS_HALF]
+        scale = 1.0
+        if cos_half < 1.0:
+            ax, ay, az = _cone_direction(ax, ay, az, cos_half, u0, u1)
+            # uniform radiance over the cone: E_perp = L pi sin^2, pdf 1 / (2 pi (1 - cos))
+            scale = 2.0 * (1.0 - cos_half) / (1.0 - cos_half * cos_half)
+        c = _dot(nx, ny, nz, ax, ay, az)
+        if not c > 0.0:
+            return 0.0, 0.0, 0.0, ax, ay, az, np.inf
+        f = c * scale
+        return vr * f, vg * f, vb * f, ax, ay, az, np.inf
+    if kind == POINT or kind == SPOT:
+        tx, ty, tz = p[P_POS] - ox, p[P_POS + 1] - oy, p[P_POS + 2] - oz
+        d2 = tx * tx + ty * ty + tz * tz
+        d = math.sqrt(d2)
+        if not d > 0.0:
+            return 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0
+        tx, ty, tz = tx / d, ty / d, tz / d
+        c = _dot(nx, ny, nz, tx, ty, tz)
+        if not c > 0.0:
+            return 0.0, 0.0, 0.0, tx, ty, tz, d
+        f = c / d2
+        if kind == SPOT:
+            # glTF KHR_lights_punctual: squared linear ramp in cos between the cones
+            cd = -_dot(tx, ty, tz, p[P_DIR], p[P_DIR + 1], p[P_DIR + 2])
+            ramp = (cd - p[P_COS_OUTER]) / max(1e-3, p[P_COS_INNER] - p[P_COS_OUTER])
+            ramp = min(1.0, max(0.0, ramp))
+            f *= ramp * ramp
+        return vr * f, vg * f, vb * f, tx, ty, tz, d
+    if kind == SPHERE:
+        tx, ty, tz = p[P_POS] - ox, p[P_POS + 1] - oy, p[P_POS + 2] - oz
+        d2 = tx * tx + ty * ty + tz * tz
+        r = p[P_RADIUS]
+        if not d2 > r * r:
+            return 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0
+        d = math.sqrt(d2)
+        cos_max = math.sqrt(max(0.0, 1.0 - r * r / d2))
+        dx, dy, dz = _cone_direction(tx / d, ty / d, tz / d, cos_max, u0, u1)
+        c = _dot(nx, ny, nz, dx, dy, dz)
+        if not c > 0.0:
+            return 0.0, 0.0, 0.0, dx, dy, dz, 0.0
+        ct = _dot(dx, dy, dz, tx, ty, tz)  # d cos(theta)
+        dist = ct - math.sqrt(max(0.0, r * r - (d2 - ct * ct)))
+        f = c * _TWO_PI * (1.0 - cos_max)
+        return vr * f, vg * f, vb * f, dx, dy, dz, dist
+    if kind == RECT or kind == DISK:
+        mx, my, mz = p[P_NORMAL], p[P_NORMAL + 1], p[P_NORMAL + 2]
+        if kind == RECT:
+            a, b = 2.0 * u0 - 1.0, 2.0 * u1 - 1.0
+            qx = p[P_POS] + a * p[P_U] + b * p[P_V]
+            qy = p[P_POS + 1] + a * p[P_U + 1] + b * p[P_V + 1]
+            qz = p[P_POS + 2] + a * p[P_U + 2] + b * p[P_V + 2]
+        else:
+            a, b = warps.square_to_uniform_disk_concentric(u0, u1)
+            r = p[P_RADIUS]
+            ex, ey, ez, fx, fy, fz = warps.frame(mx, my, mz)
+            qx = p[P_POS] + r * (a * ex + b * fx)
+            qy = p[P_POS + 1] + r * (a * ey + b * fy)
+            qz = p[P_POS + 2] + r * (a * ez + b * fz)
+        tx, ty, tz = qx - ox, qy - oy, qz - oz
+        d2 = tx * tx + ty * ty + tz * tz
+        d = math.sqrt(d2)
+        if not d > 0.0:
+            return 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0
+        tx, ty, tz = tx / d, ty / d, tz / d
+        c = _dot(nx, ny, nz, tx, ty, tz)
+        cl = -_dot(mx, my, mz, tx, ty, tz)
+        if not (c > 0.0 and cl > 0.0):
+            return 0.0, 0.0, 0.0, tx, ty, tz, d
+        f = c * cl * p[P_AREA] / d2
+        return vr * f, vg * f, vb * f, tx, ty, tz, d
+    # dome: a cosine-weighted direction that escapes sees pi L
+    x, y, z = warps.square_to_cosine_hemisphere(u0, u1)
+    dx, dy, dz = warps.to_world(x, y, z, nx, ny, nz)
+    return vr * math.pi, vg * math.pi, vb * math.pi, dx, dy, dz, np.inf
+
+
+@njit(cache=True, fastmath=FASTMATH, nogil=True)
+def sample_emitter(ox, oy, oz, nx, ny, nz, u0, u1, pos, faces, tris, cdf, emission, lum_total, shorten):
+    """One sample of the emitting triangles, chosen by area x emission (``cdf`` over
+    ``tris``); a triangle emits on the side its winding's normal points to, as rect
+    and disk lights do. Returns (wr, wg, wb, dx, dy, dz, dist), ``dist``
+    shortened by the triangle's ``shorten`` so the emitter itself is not a blocker."""
+    lo, hi = 0, cdf.shape[0] - 1
+    while lo < hi:  # first entry with cdf > u0
+        mid = (lo + hi) // 2
+        if cdf[mid] > u0:
+            hi = mid
+        else:
+            lo = mid + 1
+    below = cdf[lo - 1] if lo > 0 else 0.0
+    u0 = min(max((u0 - below) / max(cdf[lo] - below, 1e-300), 0.0), 1.0)
+    t = tris[lo]
+    su = math.sqrt(u0)
+    b0, b1 = 1.0 - su, u1 * su
+    b2 = 1.0 - b0 - b1
+    i0, i1, i2 = faces[t, 0], faces[t, 1], faces[t, 2]
+    qx = b0 * pos[i0, 0] + b1 * pos[i1, 0] + b2 * pos[i2, 0]
+    qy = b0 * pos[i0, 1] + b1 * pos[i1, 1] + b2 * pos[i2, 1]
+    qz = b0 * pos[i0, 2] + b1 * pos[i1, 2] + b2 * pos[i2, 2]
+    ex, ey, ez = pos[i1, 0] - pos[i0, 0], pos[i1, 1] - pos[i0, 1], pos[i1, 2] - pos[i0, 2]
+    fx, fy, fz = pos[i2, 0] - pos[i0, 0], pos[i2, 1] - pos[i0, 1], pos[i2, 2] - pos[i0, 2]
+    gx, gy, gz = ey * fz - ez * fy, ez * fx - ex * fz, ex * fy - ey * fx
+    g = math.sqrt(gx * gx + gy * gy + gz * gz)
+    tx, ty, tz = qx - ox, qy - oy, qz - oz
+    d2 = tx * tx + ty * ty + tz * tz
+    d = math.sqrt(d2)
+    if not (d > 0.0 and g > 0.0):
+        return 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0
+    tx, ty, tz = tx / d, ty / d, tz / d
+    c = _dot(nx, ny, nz, tx, ty, tz)
+    cl = -_dot(gx, gy, gz, tx, ty, tz) / g  # one-sided: the receiver in front of the face
+    if not (c > 0.0 and cl > 0.0):
+        return 0.0, 0.0, 0.0, tx, ty, tz, d
+    er, eg, eb = emission[t, 0], emission[t, 1], emission[t, 2]
+    # pdf per area = lum_t / lum_total, lum_t = er + eg + eb
+    f = c * cl / d2 * lum_total / (er + eg + eb)
+    return er * f, eg * f, eb * f, tx, ty, tz, max(0.0, d - shorten[t])
+
+
+@njit(cache=True, nogil=True)
+def component_keys(vertex_key, n_components):
+    """Per-component scramble seeds (s0, s1) of one vertex."""
+    out = np.zeros((n_components, 2), dtype=np.uint64)
+    for c in range(n_components):
+        s0, s1 = rng.scramble_seeds(rng.hash2(vertex_key, np.uint64(c)))
+        out[c, 0] = s0
+        out[c, 1] = s1
+    return out
+
+
+@njit(cache=True, fastmath=FASTMATH, nogil=True)
+def direct_samples(
+    vertex_index, points, origins, normals, keys, kinds, params, j_lo, j_hi, reach,
+    pos, faces, tris, cdf, emission, lum_total, shorten, scale, far_cap, sums, squares,
+    out_org, out_dir, out_far, out_w, out_row, out_comp,
+):  # fmt: skip
+    """Shadow rays of every light (and the emitters, component ``len(kinds)``) at the
+    chunk's vertices, vertex-major, then light, then sample.
+
+    ``points`` (n, 3) float64: the vertices (recentred), where the estimate is made;
+    ``origins`` (n, 3) float32 in Embree's frame (``scale``: mesh units per frame unit);
+    samples ``j_lo[c] .. j_hi[c] - 1`` of component c (none when equal); ``reach``
+    (n, L) codes. A sample with w = 0 makes nothing; one of a light without shadows is
+    added to ``sums[a, c]`` (and its square to ``squares``) at once; the others are
+    written as rays (``out_far``: float32 lengths in Embree's frame, at most
+    ``far_cap``) for :func:`add_samples`. Returns the number of rays written.
+    """
+    n_lights = kinds.shape[0]
+    inv_scale = 1.0 / scale
+    m = 0
+    for a in range(vertex_index.shape[0]):
+        v = vertex_index[a]
+        nx, ny, nz = normals[v, 0], normals[v, 1], normals[v, 2]
+        if nx == 0.0 and ny == 0.0 and nz == 0.0:
+            continue
+        # the estimate is made at the vertex; its shadow ray starts at the offset origin
+        ox, oy, oz = points[v, 0], points[v, 1], points[v, 2]
+        rx = np.float64(origins[v, 0]) * scale
+        ry = np.float64(origins[v, 1]) * scale
+        rz = np.float64(origins[v, 2]) * scale
+        for c in range(n_lights + 1):
+            if j_hi[c] <= j_lo[c]:
+                continue
+            if c < n_lights:
+                if reach[v, c] != REACH_OK:
+                    continue
+                shadow = params[c, P_SHADOW] > 0.0
+            else:
+                shadow = True
+            s0, s1 = rng.scramble_seeds(rng.hash2(keys[v], np.uint64(c)))
+            for j in range(j_lo[c], j_hi[c]):
+                u0, u1 = rng.scrambled_sobol2_seeded(j, s0, s1)
+                if c < n_lights:
+                    wr, wg, wb, dx, dy, dz, dist = sample_light(kinds[c], params[c], ox, oy, oz, nx, ny, nz, u0, u1)
+                else:
+                    wr, wg, wb, dx, dy, dz, dist = sample_emitter(
+                        ox, oy, oz, nx, ny, nz, u0, u1, pos, faces, tris, cdf, emission, lum_total, shorten
+                    )
+                if not (wr > 0.0 or wg > 0.0 or wb > 0.0):
+                    continue
+                if not shadow:
+                    sums[a, c, 0] += wr
+                    sums[a, c, 1] += wg
+                    sums[a, c, 2] += wb
+                    squares[a, c, 0] += wr * wr
+                    squares[a, c, 1] += wg * wg
+                    squares[a, c, 2] += wb * wb
+                    continue
+                if dist < np.inf:  # aim at the sampled point from the ray's origin
+                    tx = ox + dist * dx - rx
+                    ty = oy + dist * dy - ry
+                    tz = oz + dist * dz - rz
+                    dist = math.sqrt(tx * tx + ty * ty + tz * tz)
+                    if not dist > 0.0:
+                        continue
+                    dx, dy, dz = tx / dist, ty / dist, tz / dist
+                out_org[m, 0] = origins[v, 0]
+                out_org[m, 1] = origins[v, 1]
+                out_org[m, 2] = origins[v, 2]
+                out_dir[m, 0] = dx
+                out_dir[m, 1] = dy
+                out_dir[m, 2] = dz
+                out_far[m] = min(dist * inv_scale, far_cap)
+                out_w[m, 0] = wr
+                out_w[m, 1] = wg
+                out_w[m, 2] = wb
+                out_row[m] = a
+                out_comp[m] = c
+                m += 1
+    return m
+
+
+@njit(cache=True, nogil=True)
+def add_samples(ids, w, row, comp, m, sums, squares):
+    """Add unoccluded samples (``ids == -1``) to ``sums[row, comp]`` and their squares to
+    ``squares[row, comp]``, in row order (the order they were made)."""
+    for r in range(m):
+        if ids[r] != -1:
+            continue
+        a, c = row[r], comp[r]
+        for k in range(3):
+            sums[a, c, k] += w[r, k]
+            squares[a, c, k] += w[r, k] * w[r, k]
+
+
+@njit(cache=True, fastmath=FASTMATH, nogil=True)
+def bounce_directions(path_org, path_normal, alive, keys, vertex_of, index_of, depth, inv_scale, out_live, out_org, out_dir):
+    """Rays of the live paths, compacted: ``out_live[r]`` the path, its origin (float32,
+    Embree's frame) and a cosine-weighted direction about its normal. Path p is sample
+    ``index_of[p]`` of vertex ``vertex_of[p]`` at ``depth``. The first direction is a
+    scrambled Sobol point; later ones and the samples at hits are independent hashes:
+    two Owen-scrambled copies of one sequence indexed alike are correlated, and a path
+    multiplies them (measured: a bias of ~20% on the box's indirect light). Returns
+    the number of rays."""
+    m = 0
+    for p in range(alive.shape[0]):
+        if not alive[p]:
+            continue
+        key = rng.hash2(keys[vertex_of[p]], np.uint64(1000003 + depth))
+        if depth == 0:
+            s0, s1 = rng.scramble_seeds(key)
+            u0, u1 = rng.scrambled_sobol2_seeded(index_of[p], s0, s1)
+        else:
+            u0, u1 = rng.random2(index_of[p], key)
+        x, y, z = warps.square_to_cosine_hemisphere(u0, u1)
+        dx, dy, dz = warps.to_world(x, y, z, path_normal[p, 0], path_normal[p, 1], path_normal[p, 2])
+        out_live[m] = p
+        out_org[m, 0] = path_org[p, 0] * inv_scale
+        out_org[m, 1] = path_org[p, 1] * inv_scale
+        out_org[m, 2] = path_org[p, 2] * inv_scale
+        out_dir[m, 0] = dx
+        out_dir[m, 1] = dy
+        out_dir[m, 2] = dz
+        m += 1
+    return m
+
+
+@njit(cache=True, fastmath=FASTMATH, nogil=True)
+def follow_hits(
+    live, m, prim, org, dirs, scale, points, faces, path_org, path_normal, throughput, value, alive,
+    face_normals, face_albedo, dome, offset, continue_paths,
+):  # fmt: skip
+    """After tracing rays 0..m-1 of the live paths ``live`` (first hits ``prim``): an
+    escaping path adds throughput x pi L_dome to ``value`` and ends; a hit moves the
+    path to the hit point (the ray met with the face's plane in float64, offset along
+    the face normal turned to face the ray), takes the face's albedo into the
+    throughput and ends where that is zero or ``continue_paths`` is False."""
+    for r in range(m):
+        p = live[r]
+        f = prim[r]
+        if f < 0:
+            for k in range(3):
+                value[p, k] += throughput[p, k] * math.pi * dome[k]
+            alive[p] = False
+            continue
+        gx, gy, gz = face_normals[f, 0], face_normals[f, 1], face_normals[f, 2]
+        dx, dy, dz = np.float64(dirs[r, 0]), np.float64(dirs[r, 1]), np.float64(dirs[r, 2])
+        along = _dot(gx, gy, gz, dx, dy, dz)
+        if not continue_paths or along == 0.0:
+            alive[p] = False
+            continue
+        ox = np.float64(org[r, 0]) * scale
+        oy = np.float64(org[r, 1]) * scale
+        oz = np.float64(org[r, 2]) * scale
+        v0 = faces[f, 0]
+        t = _dot(points[v0, 0] - ox, points[v0, 1] - oy, points[v0, 2] - oz, gx, gy, gz) / along
+        if along > 0.0:
+            gx, gy, gz = -gx, -gy, -gz
+        t = max(t, 0.0)
+        e = offset[f]
+        path_org[p, 0] = ox + t * dx + e * gx
+        path_org[p, 1] = oy + t * dy + e * gy
+        path_org[p, 2] = oz + t * dz + e * gz
+        path_normal[p, 0] = gx
+        path_normal[p, 1] = gy
+        path_normal[p, 2] = gz
+        black = True
+        for k in range(3):
+            throughput[p, k] *= face_albedo[f, k]
+            if throughput[p, k] > 0.0:
+                black = False
+        if black:
+            alive[p] = False
+
+
+@njit(cache=True, fastmath=FASTMATH, nogil=True)
+def hit_samples(
+    alive, path_org, path_normal, throughput, keys, vertex_of, index_of, depth,
+    kinds, params, has_emitters, pos, faces, tris, cdf, emission, lum_total, shorten, inv_scale, far_cap,
+    value, out_org, out_dir, out_far, out_w, out_row,
+):  # fmt: skip
+    """Next-event estimation at every live path's hit point: one sample per light (the
+    dome excluded: escaping paths see it) and one of the emitters, weighted by the
+    path's throughput. A light without shadows adds to ``value`` at once; the others
+    are written as rays as in :func:`direct_samples` (``out_row`` = path). Returns the
+    number of rays."""
+    n_lights = kinds.shape[0]
+    m = 0
+    for p in range(alive.shape[0]):
+        if not alive[p]:
+            continue
+        ox, oy, oz = path_org[p, 0], path_org[p, 1], path_org[p, 2]
+        nx, ny, nz = path_normal[p, 0], path_normal[p, 1], path_normal[p, 2]
+        key = rng.hash2(keys[vertex_of[p]], np.uint64(2000003 + depth))
+        for c in range(n_lights + 1):
+            if c < n_lights:
+                kind = kinds[c]
+                if kind == DOME and params[c, P_SHADOW] > 0.0:
+                    continue
+                if reach_code(kind, params[c], ox, oy, oz, nx, ny, nz) != REACH_OK:
+                    continue
+                shadow = params[c, P_SHADOW] > 0.0
+            elif not has_emitters:
+                continue
+            else:
+                shadow = True
+            u0, u1 = rng.random2(index_of[p], rng.hash2(key, np.uint64(c)))
+            if c < n_lights:
+                wr, wg, wb, dx, dy, dz, dist = sample_light(kinds[c], params[c], ox, oy, oz, nx, ny, nz, u0, u1)
+            else:
+                wr, wg, wb, dx, dy, dz, dist = sample_emitter(
+                    ox, oy, oz, nx, ny, nz, u0, u1, pos, faces, tris, cdf, emission, lum_total, shorten
+                )
+            wr *= throughput[p, 0]
+            wg *= throughput[p, 1]
+            wb *= throughput[p, 2]
+            if not (wr > 0.0 or wg > 0.0 or wb > 0.0):
+                continue
+            if not shadow:
+                value[p, 0] += wr
+                value[p, 1] += wg
+                value[p, 2] += wb
+                continue
+            out_org[m, 0] = ox * inv_scale
+            out_org[m, 1] = oy * inv_scale
+            out_org[m, 2] = oz * inv_scale
+            out_dir[m, 0] = dx
+            out_dir[m, 1] = dy
+            out_dir[m, 2] = dz
+            out_far[m] = min(dist * inv_scale, far_cap)
+            out_w[m, 0] = wr
+            out_w[m, 1] = wg
+            out_w[m, 2] = wb
+            out_row[m] = p
+            m += 1
+    return m
+
+
+@njit(cache=True, nogil=True)
+def add_path_samples(ids, w, row, m, value):
+    """Add unoccluded next-event samples to their path's ``value``, in row order."""
+    for r in range(m):
+        if ids[r] != -1:
+            continue
+        p = row[r]
+        for k in range(3):
+            value[p, k] += w[r, k]
+
+
+@njit(cache=True, nogil=True)
+def path_sums(value_direct, value_indirect, per, sums_direct, sums_indirect, squares):
+    """Per vertex of the chunk: the sums of its ``per`` consecutive paths' direct and
+    indirect values and of the squares of their totals, in path order."""
+    for a in range(sums_direct.shape[0]):
+        for s in range(per):
+            p = a * per + s
+            for k in range(3):
+                d, i = value_direct[p, k], value_indirect[p, k]
+                sums_direct[a, k] += d
+                sums_indirect[a, k] += i
+                squares[a, k] += (d + i) * (d + i)
+
+
+@njit(cache=True, nogil=True)
+def reach_all(points, normals, kinds, params):
+    """(n, L) int8 reach codes (:func:`reach_code`) of every vertex and light."""
+    n, n_lights = points.shape[0], kinds.shape[0]
+    out = np.zeros((n, n_lights), dtype=np.int8)
+    for i in range(n):
+        for c in range(n_lights):
+            out[i, c] = reach_code(
+                kinds[c], params[c], points[i, 0], points[i, 1], points[i, 2], normals[i, 0], normals[i, 1], normals[i, 2]
+            )
+    return out

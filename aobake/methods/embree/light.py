@@ -1,0 +1,460 @@
+"""The ray-traced irradiance reference: direct light by shadow rays, indirect light by
+cosine-weighted paths with next-event estimation (docs/light-transport.md).
+
+Numpy-facing; samples are made and summed by ``aobake.kernels.lights`` and traced
+through :mod:`aobake.tracing` from the AO's contact-safe origins. Never prints.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import threading
+import time
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+
+import numpy as np
+
+from ...constants import (
+    ADAPTIVE_FIRST_ROUND,
+    CHUNK_RAYS,
+    EPS32,
+    INFINITE_DISTANCE,
+    RAY_OFFSET_ULPS,
+    Z95,
+)
+from ...contacts import contact_origins, ray_offsets
+from ...errors import NumericalError
+from ...kernels import lights as _kl
+from ...kernels import rays as _k
+from ...kernels import topology as _topo
+from ...mesh import Surface
+from ...options import build
+from ...progress import NullProgress, Progress
+from ...shading import AREA_KINDS, Light, Shading
+from ...tracing import Tracer, trace_chunks
+from .options import LightOptions
+
+
+@dataclass(frozen=True)
+class LightStats:
+    """What one light cost and skipped (``name`` "emitters" for the emitting triangles).
+
+    Attributes
+    ----------
+    name : str
+    behind, cone, range, no_normal : int
+        Receivers (vertices) it cannot reach, by reason: behind the tangent plane (or
+        on the back of a one-sided light), outside a spot's outer cone, beyond
+        ``range``, vertex without a normal. They cost no ray.
+    shadow_rays : int
+        Shadow rays it cast from the vertices (direct light; a dome's are the paths'
+        first rays, counted in ``n_bounce_rays``).
+    """
+
+    name: str
+    behind: int = 0
+    cone: int = 0
+    range: int = 0
+    no_normal: int = 0
+    shadow_rays: int = 0
+
+    @property
+    def skipped(self) -> int:
+        return self.behind + self.cone + self.range + self.no_normal
+
+
+@dataclass(frozen=True)
+class LightResult:
+    """Result of :func:`irradiance`: per-vertex irradiance on the side the normal points to.
+
+    Attributes
+    ----------
+    direct, indirect : (n, 3) float64 >= 0
+        Linear RGB irradiance in the scene's light units: straight from the lights,
+        emitters and dome; and after 1..K bounces.
+    error : (n, 3) float64
+        95% half-width of the estimate of direct + indirect (per channel).
+    n_shadow_rays : int
+        Shadow rays cast from the vertices (direct light).
+    n_bounce_rays : int
+        Path rays (their first rays included: they also see the dome) and the shadow
+        rays cast from the paths' hit points.
+    lights : tuple of LightStats
+        One per ``shading.lights``, then one for the emitting triangles.
+    samples : (n,) int64
+        Samples per area light taken at each vertex (fewer than ``n_samples`` where
+        ``tolerance`` stopped it early).
+    seconds : float
+    contacts : int
+    """
+
+    direct: np.ndarray
+    indirect: np.ndarray
+    error: np.ndarray
+    n_shadow_rays: int
+    n_bounce_rays: int
+    lights: tuple
+    samples: np.ndarray
+    seconds: float
+    contacts: int
+
+    @property
+    def irradiance(self) -> np.ndarray:
+        return self.direct + self.indirect
+
+
+def light_table(lights, center: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(kinds (L,) int64, params (L, N_PARAMS) float64) of ``lights`` in the frame
+    recentred on ``center``."""
+    kinds = np.array([_kl.KIND_CODES[light.kind] for light in lights], dtype=np.int64)
+    params = np.zeros((len(lights), _kl.N_PARAMS))
+    for i, light in enumerate(lights):
+        row = params[i]
+        row[_kl.P_VALUE : _kl.P_VALUE + 3] = light.value
+        row[_kl.P_POS : _kl.P_POS + 3] = light.position - center
+        row[_kl.P_DIR : _kl.P_DIR + 3] = light.direction
+        row[_kl.P_U : _kl.P_U + 3] = light.u
+        row[_kl.P_V : _kl.P_V + 3] = light.v
+        row[_kl.P_NORMAL : _kl.P_NORMAL + 3] = light.normal
+        row[_kl.P_RADIUS] = light.radius
+        row[_kl.P_COS_HALF] = math.cos(0.5 * light.angle)
+        row[_kl.P_COS_INNER] = math.cos(light.cone_inner)
+        row[_kl.P_COS_OUTER] = math.cos(light.cone_outer)
+        row[_kl.P_RANGE] = light.range
+        row[_kl.P_SHADOW] = 1.0 if light.shadow else 0.0
+        row[_kl.P_AREA] = light.area
+    return kinds, params
+
+
+def _sampled(light: Light) -> bool:
+    """Whether a light's direct term needs many samples (else one is exact)."""
+    return light.kind in AREA_KINDS or (light.kind == "distant" and light.angle > 0)
+
+
+def _rounds(n: int, adaptive: bool) -> list[int]:
+    """Sample counts at the end of each round (powers of two from 16, then ``n``)."""
+    if not adaptive:
+        return [n]
+    out, j = [], min(ADAPTIVE_FIRST_ROUND, n)
+    while True:
+        out.append(j)
+        if j >= n:
+            return out
+        j = min(2 * j, n)
+
+
+def run_light(
+    surface: Surface, shading: Shading, options, progress: Progress | None = None, *, indirect: bool = True
+) -> LightResult:
+    """The method interface (:func:`aobake.methods.run_light`): :func:`irradiance` with
+    the light fields of ``options`` (:class:`~aobake.methods.embree.EmbreeOptions`);
+    ``indirect=False`` computes direct light only."""
+    changes = {} if indirect else {"bounces": 0}
+    return irradiance(surface, shading, options.light(**changes), progress=progress)
+
+
+def irradiance(
+    surface: Surface,
+    shading: Shading,
+    options: LightOptions | None = None,
+    *,
+    progress: Progress | None = None,
+    chunk_rays: int = CHUNK_RAYS,
+    **changes,
+) -> LightResult:
+    """Per-vertex irradiance (direct and indirect, RGB) of ``surface`` lit by ``shading``.
+
+    Parameters
+    ----------
+    surface : Surface
+        Triangles that occlude and reflect, vertices that receive.
+    shading : Shading
+        Lights, per-face albedo and emission (:mod:`aobake.shading`).
+    options : LightOptions, optional
+        ``n_samples``, ``bounces``, ``n_indirect``, ``tolerance``, ``max_distance``,
+        ``bias``, ``seed``, ``threads``; keywords override them.
+    progress : Progress, optional
+    chunk_rays : int
+        About this many rays per work item (memory; no effect on the result).
+
+    Notes
+    -----
+    Direct light: one shadow ray per point, spot or sharp distant light; ``n_samples``
+    stratified (Owen-scrambled Sobol, keyed by seed, vertex and light) per area light,
+    angular distant light and for the emitting triangles together; a light without
+    shadows adds its unoccluded value without rays. Indirect light and the dome:
+    ``n_indirect`` cosine-weighted paths per vertex; a path that escapes sees the dome
+    (pi L times its throughput; at the first ray that is direct light), a path that hits
+    a face takes its albedo, estimates the light there by one sample per light (pure
+    next-event estimation: emission a path hits is never added, so nothing is counted
+    twice) and goes on for ``bounces`` hits. Every sample is a pure function of (seed,
+    vertex, component, index) and each vertex's sums are made in one order, so results
+    are bit-identical for any thread count and chunking.
+    """
+    options = build(LightOptions, options, **changes)
+    _check_shading(surface, shading)
+    t0 = time.perf_counter()
+    progress = progress or NullProgress()
+    threads = max(1, int(options.threads or os.cpu_count() or 1))
+    n = surface.n_vertices
+    lights = tuple(light for light in shading.lights)
+    n_lights = len(lights)
+    n_comp = n_lights + 1
+
+    tracer = Tracer(surface.positions, surface.faces)
+    edges = _topo.longest_edges(surface.positions, surface.faces)
+    offsets = ray_offsets(surface, tracer.magnitude, options.bias, edges)
+    origins, contacts = contact_origins(surface, tracer, offsets, edges)
+    normals = np.ascontiguousarray(surface.normals, dtype=np.float64)
+    points = np.ascontiguousarray(tracer.local)
+    faces = np.ascontiguousarray(surface.faces, dtype=np.int64)
+    keys = _k.vertex_keys(np.uint64(options.seed), n)
+    scale = float(tracer.scale)
+    tmax = math.inf if options.max_distance is None else float(options.max_distance)
+    far_cap = min(tmax / scale, INFINITE_DISTANCE)  # the longest ray in Embree's frame
+
+    kinds, params = light_table(lights, tracer.center)
+    black = np.array([light.is_black for light in lights], dtype=bool)
+    reach = _kl.reach_all(points, normals, kinds, params) if n_lights else np.zeros((n, 0), dtype=np.int8)
+    reach[:, black] = _kl.REACH_NONE
+
+    # faces: unit normals, hit-point offsets, the emitters' sampling table
+    corner = surface.positions[faces] if faces.size else np.zeros((0, 3, 3))
+    cross = np.cross(corner[:, 1] - corner[:, 0], corner[:, 2] - corner[:, 0]) if faces.size else np.zeros((0, 3))
+    length = np.linalg.norm(cross, axis=1)
+    face_normals = np.where(length[:, None] > 0, cross / np.where(length > 0, length, 1.0)[:, None], 0.0)
+    face_edges = edges[faces].max(axis=1) if faces.size else np.zeros(0)
+    face_offsets = RAY_OFFSET_ULPS * EPS32 * (tracer.magnitude + face_edges)
+    emission = np.ascontiguousarray(shading.face_emission, dtype=np.float64)
+    power = 0.5 * length * emission.sum(axis=1) if faces.size else np.zeros(0)
+    tris = np.flatnonzero(power > 0).astype(np.int64)
+    has_emitters = tris.size > 0
+    cdf = np.cumsum(power[tris]) / power[tris].sum() if has_emitters else np.ones(1)
+    if has_emitters:
+        cdf[-1] = 1.0
+    else:
+        tris = np.zeros(1, dtype=np.int64)
+    lum_total = float((0.5 * length[tris] * emission[tris].sum(axis=1)).sum()) if has_emitters else 1.0
+    albedo = np.ascontiguousarray(shading.face_albedo, dtype=np.float64)
+
+    # samples per component; the dome with shadows comes from the paths
+    dome = np.zeros(3)
+    exact = np.zeros(n_comp, dtype=bool)
+    sampled = np.zeros(n_comp, dtype=bool)
+    for c, light in enumerate(lights):
+        if light.is_black:
+            continue
+        if light.kind == "dome" and light.shadow:
+            dome += light.value
+        elif _sampled(light):
+            sampled[c] = True
+        else:
+            exact[c] = True  # point, spot, sharp distant, a dome without shadows
+    sampled[n_lights] = has_emitters
+    lit = bool(exact.any() or sampled.any() or np.any(dome > 0))
+    bounces = options.bounces if shading.reflects and lit else 0
+    use_paths = bool(np.any(dome > 0)) or bounces > 0
+
+    adaptive = options.tolerance is not None
+    ends = _rounds(options.n_samples, adaptive)
+    path_ends = [max(1, -(-options.n_indirect * j // options.n_samples)) for j in ends]
+    per_vertex = int(sampled.sum()) * options.n_samples + int(exact.sum())
+    if use_paths:
+        per_vertex += options.n_indirect * (1 + bounces * (1 + n_comp))
+    per_chunk = max(1, min(chunk_rays // max(per_vertex, 1), -(-n // (4 * threads))))
+
+    sums = np.zeros((n, n_comp, 3))
+    squares = np.zeros((n, n_comp, 3))
+    path_d = np.zeros((n, 3))
+    path_i = np.zeros((n, 3))
+    path_sq = np.zeros((n, 3))
+    shadow_rays = np.zeros(n_comp, dtype=np.int64)
+    counts = {"bounce": 0}
+    lock = threading.Lock()
+    inv_scale = 1.0 / scale
+
+    def direct(vidx, j_lo, j_hi):
+        k = int(vidx.size * np.maximum(j_hi - j_lo, 0).sum())
+        if k == 0:
+            return 0
+        org = np.empty((k, 3), dtype=np.float32)
+        dirs = np.empty((k, 3), dtype=np.float32)
+        far = np.empty(k, dtype=np.float32)
+        w = np.empty((k, 3))
+        row = np.empty(k, dtype=np.int64)
+        comp = np.empty(k, dtype=np.int64)
+        local = np.zeros((vidx.size, n_comp, 3))
+        local_sq = np.zeros((vidx.size, n_comp, 3))
+        m = _kl.direct_samples(
+            vidx, points, origins, normals, keys, kinds, params, j_lo, j_hi, reach,
+            points, faces, tris, cdf, emission, lum_total, face_offsets, scale, far_cap, local, local_sq,
+            org, dirs, far, w, row, comp,
+        )  # fmt: skip
+        if m:
+            ids = tracer.occluded_within(org[:m], dirs[:m], far[:m])
+            _kl.add_samples(ids, w, row, comp, m, local, local_sq)
+        sums[vidx] += local
+        squares[vidx] += local_sq
+        with lock:
+            shadow_rays[:] += np.bincount(comp[:m], minlength=n_comp)
+        return m
+
+    def paths(vidx, p0, p1):
+        per = p1 - p0
+        count = vidx.size * per
+        vertex_of = np.repeat(vidx, per)
+        index_of = np.tile(np.arange(p0, p1, dtype=np.int64), vidx.size)
+        path_org = np.repeat(origins[vidx].astype(np.float64) * scale, per, axis=0)
+        path_normal = np.repeat(normals[vidx], per, axis=0)
+        alive = np.repeat(np.any(normals[vidx] != 0, axis=1), per)
+        throughput = np.ones((count, 3))
+        value_d = np.zeros((count, 3))
+        value_i = np.zeros((count, 3))
+        live = np.empty(count, dtype=np.int64)
+        org = np.empty((count, 3), dtype=np.float32)
+        dirs = np.empty((count, 3), dtype=np.float32)
+        k = count * n_comp
+        s_org = np.empty((k, 3), dtype=np.float32)
+        s_dir = np.empty((k, 3), dtype=np.float32)
+        s_far = np.empty(k, dtype=np.float32)
+        s_w = np.empty((k, 3))
+        s_row = np.empty(k, dtype=np.int64)
+        rays = 0
+        for depth in range(bounces + 1):
+            m = _kl.bounce_directions(path_org, path_normal, alive, keys, vertex_of, index_of, depth, inv_scale, live, org, dirs)
+            if m == 0:
+                break
+            prim = tracer.first_hits(org[:m], dirs[:m], options.max_distance)
+            rays += m
+            _kl.follow_hits(
+                live, m, prim, org, dirs, scale, points, faces, path_org, path_normal, throughput,
+                value_d if depth == 0 else value_i, alive, face_normals, albedo, dome, face_offsets,
+                depth < bounces,
+            )  # fmt: skip
+            if depth == bounces:
+                break
+            m = _kl.hit_samples(
+                alive, path_org, path_normal, throughput, keys, vertex_of, index_of, depth,
+                kinds, params, has_emitters, points, faces, tris, cdf, emission, lum_total, face_offsets,
+                inv_scale, far_cap, value_i, s_org, s_dir, s_far, s_w, s_row,
+            )  # fmt: skip
+            if m:
+                ids = tracer.occluded_within(s_org[:m], s_dir[:m], s_far[:m])
+                _kl.add_path_samples(ids, s_w, s_row, m, value_i)
+            rays += m
+        sd = np.zeros((vidx.size, 3))
+        si = np.zeros((vidx.size, 3))
+        sq = np.zeros((vidx.size, 3))
+        _kl.path_sums(value_d, value_i, per, sd, si, sq)
+        path_d[vidx] += sd
+        path_i[vidx] += si
+        path_sq[vidx] += sq
+        with lock:
+            counts["bounce"] += rays
+        return rays
+
+    taken = np.zeros(n, dtype=np.int64)
+    taken_paths = np.zeros(n, dtype=np.int64)
+    active = np.arange(n, dtype=np.int64)
+    progress.start(n * per_vertex, "light")
+    pool = ThreadPoolExecutor(max_workers=threads)
+    j0 = p0 = 0
+    try:
+        for r, (j1, p1) in enumerate(zip(ends, path_ends, strict=True)):
+            j_lo = np.where(sampled, j0, 0).astype(np.int64)
+            j_hi = np.where(sampled, j1, 0).astype(np.int64)
+            if r == 0:
+                j_hi[exact] = 1
+
+            def work(vidx, j_lo=j_lo, j_hi=j_hi, p0=p0, p1=p1):
+                done = direct(vidx, j_lo, j_hi)
+                if use_paths and p1 > p0:
+                    done += paths(vidx, p0, p1)
+                return done
+
+            trace_chunks(
+                (active[s : s + per_chunk] for s in range(0, active.size, per_chunk)),
+                work,
+                threads=threads,
+                progress=progress,
+                pool=pool,
+            )
+            taken[active] = j1
+            taken_paths[active] = p1 if use_paths else 0
+            j0, p0 = j1, p1
+            if adaptive and j1 < options.n_samples:
+                e, err = _estimate(sums, squares, path_d, path_i, path_sq, taken, taken_paths, sampled, exact, active)
+                keep = np.max(err, axis=1) > options.tolerance * np.max(e, axis=1)
+                active = active[keep]
+                if active.size == 0:
+                    break
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
+    progress.finish()
+
+    everyone = np.arange(n, dtype=np.int64)
+    direct_e, indirect_e, error = _estimate(
+        sums, squares, path_d, path_i, path_sq, taken, taken_paths, sampled, exact, everyone, split=True
+    )
+    for name, arr in (("direct", direct_e), ("indirect", indirect_e), ("error", error)):
+        if not np.isfinite(arr).all() or arr.min() < 0:
+            raise NumericalError(f"{surface.source}: the light transport produced a {name} irradiance that is negative or not finite")
+    stats = []
+    for c in range(n_comp):
+        name = lights[c].name if c < n_lights else "emitters"
+        if c < n_lights and not lights[c].is_black:
+            codes = np.bincount(reach[:, c].astype(np.int64), minlength=5)
+            stats.append(LightStats(name, int(codes[1]), int(codes[2]), int(codes[3]), int(codes[4]), int(shadow_rays[c])))
+        else:
+            stats.append(LightStats(name, shadow_rays=int(shadow_rays[c])))
+    return LightResult(
+        direct=direct_e,
+        indirect=indirect_e,
+        error=error,
+        n_shadow_rays=int(shadow_rays.sum()),
+        n_bounce_rays=int(counts["bounce"]),
+        lights=tuple(stats),
+        samples=np.where(np.any(normals != 0, axis=1), taken, 0),
+        seconds=time.perf_counter() - t0,
+        contacts=contacts,
+    )
+
+
+def _check_shading(surface: Surface, shading: Shading) -> None:
+    """ValueError unless ``shading``'s arrays fit ``surface`` and are finite, albedo in
+    [0, 1] and emission >= 0 (a reader's bug, not a user's file: readers check those)."""
+    m, n = surface.n_faces, surface.n_vertices
+    for name, rows in (("face_albedo", m), ("face_emission", m), ("vertex_albedo", n), ("vertex_emission", n)):
+        arr = np.asarray(getattr(shading, name))
+        if arr.shape != (rows, 3):
+            raise ValueError(f"shading.{name} has shape {arr.shape}, the surface needs ({rows}, 3)")
+        if not np.isfinite(arr).all() or arr.min(initial=0.0) < 0:
+            raise ValueError(f"shading.{name} has negative or non-finite values")
+    if np.asarray(shading.face_albedo).max(initial=0.0) > 1:
+        raise ValueError("shading.face_albedo above 1 would add energy at every bounce")
+
+
+def _estimate(sums, squares, path_d, path_i, path_sq, taken, taken_paths, sampled, exact, rows, split=False):
+    """Means and 95% half-widths of ``rows``: (irradiance, error), or with ``split``
+    (direct, indirect, error). Each sampled component and the paths add their variance
+    of the mean, (sum of squares - n mean^2) / (n (n - 1)); exact ones add none."""
+    n_samp = taken[rows].astype(np.float64)[:, None, None]
+    s, q = sums[rows], squares[rows]
+    weight = sampled.astype(np.float64)[None, :, None]
+    safe = np.maximum(n_samp, 1.0)
+    mean_sampled = s / safe
+    var = np.maximum(q - s * mean_sampled, 0.0) / np.maximum(safe * (safe - 1.0), 1.0)
+    direct = (mean_sampled * weight).sum(axis=1) + (s * exact[None, :, None]).sum(axis=1)
+    variance = (var * weight).sum(axis=1)
+    np_ = taken_paths[rows].astype(np.float64)[:, None]
+    safe_p = np.maximum(np_, 1.0)
+    d, i = path_d[rows] / safe_p, path_i[rows] / safe_p
+    total = path_d[rows] + path_i[rows]
+    variance += np.maximum(path_sq[rows] - total * (d + i), 0.0) / np.maximum(safe_p * (safe_p - 1.0), 1.0)
+    direct = direct + d
+    error = Z95 * np.sqrt(variance)
+    if split:
+        return direct, i, error
+    return direct + i, error

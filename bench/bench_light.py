@@ -1,0 +1,105 @@
+"""Light transport bench (issue 15): ray throughput of the shadow and bounce rays against
+the AO rays on the same scene, accuracy at the defaults against a high-sample estimate
+on the bundled Cornell-like box (its RectLight, and the same light as an emissive quad),
+and coverage of the per-vertex error estimate.
+
+    PYTHONPATH=. python bench/bench_light.py [--repeats 3] [--threads 2]
+
+Prints ratios measured in one run (goals: throughput >= 0.9x the AO rays', relative RMSE
+<= 2%, coverage >= 95%); docs/bench_light.md records a run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+
+from aobake.io import load_mesh
+from aobake.io.lights import read_shading
+from aobake.mesh import surface_from_arrays
+from aobake.methods.embree import embree_ao
+from aobake.methods.embree.light import irradiance
+from aobake.methods.embree.options import LightOptions
+from aobake.shading import Shading
+
+from common import DATA_DIR
+
+
+def emissive_variant(surface, shading):
+    """The box with its RectLight replaced by a two-triangle quad emitting the same
+    radiance downwards (the quad also occludes; its 4 vertices are not scored)."""
+    light = next(x for x in shading.lights if x.kind == "rect")
+    corners = [light.position + su * light.u + sv * light.v for su, sv in ((-1, -1), (1, -1), (1, 1), (-1, 1))]
+    n = surface.n_vertices
+    quad = np.array([[n, n + 1, n + 2], [n, n + 2, n + 3]])
+    if np.dot(np.cross(corners[1] - corners[0], corners[2] - corners[0]), light.normal) < 0:
+        quad = quad[:, ::-1]
+    pos = np.vstack([surface.positions, corners])
+    normals = np.vstack([surface.normals, np.tile(light.normal, (4, 1))])
+    out = surface_from_arrays(pos, np.vstack([surface.faces, quad]), normals)
+    lights = tuple(x for x in shading.lights if x is not light)
+    emission = np.vstack([shading.face_emission, np.tile(light.value, (2, 1))])
+    albedo = np.vstack([shading.face_albedo, np.zeros((2, 3))])
+    return out, Shading(
+        lights, albedo, emission, np.vstack([shading.vertex_albedo, np.zeros((4, 3))]),
+        np.vstack([shading.vertex_emission, np.tile(light.value, (4, 1))]),
+    ), n  # fmt: skip
+
+
+def rel_rmse(a, b):
+    return float(np.sqrt(((a - b) ** 2).sum() / (b**2).sum()))
+
+
+def throughput(surface, shading, repeats, threads):
+    """Best-of-``repeats`` rays per second of AO, direct-only and one-bounce runs, interleaved."""
+    best = {"ao": 0.0, "shadow": 0.0, "bounce": 0.0}
+    for _ in range(repeats):
+        t = time.perf_counter()
+        ao = embree_ao(surface, n_rays=1024, threads=threads)
+        best["ao"] = max(best["ao"], ao.n_rays / (time.perf_counter() - t))
+        t = time.perf_counter()
+        r = irradiance(surface, shading, n_samples=1024, bounces=0, threads=threads)
+        best["shadow"] = max(best["shadow"], r.n_shadow_rays / (time.perf_counter() - t))
+        t = time.perf_counter()
+        r = irradiance(surface, shading, n_samples=16, n_indirect=1024, bounces=1, threads=threads)
+        best["bounce"] = max(best["bounce"], (r.n_shadow_rays + r.n_bounce_rays) / (time.perf_counter() - t))
+    return best
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--threads", type=int, default=None)
+    parser.add_argument("--ref-samples", type=int, default=4096)
+    parser.add_argument("--ref-paths", type=int, default=16384)
+    args = parser.parse_args()
+    path = DATA_DIR / "cornell_box.usda"
+    surface = load_mesh(path)
+    shading = read_shading(path, surface)
+    defaults = LightOptions()
+    print(f"scene {path.name}: {surface.n_vertices} vertices, {surface.n_faces} triangles; defaults "
+          f"n_samples {defaults.n_samples}, n_indirect {defaults.n_indirect}, bounces {defaults.bounces}")
+    irradiance(surface, shading, n_samples=1, n_indirect=1)  # compile
+    rates = throughput(surface, shading, args.repeats, args.threads)
+    print(f"rays/s: ao {rates['ao']:.3g}, shadow {rates['shadow']:.3g} ({rates['shadow'] / rates['ao']:.2f}x), "
+          f"bounce+nee {rates['bounce']:.3g} ({rates['bounce'] / rates['ao']:.2f}x)  [goal >= 0.9x]")
+    for name, (surf, sh, scored) in {
+        "RectLight": (surface, shading, surface.n_vertices),
+        "emissive quad": emissive_variant(surface, shading),
+    }.items():
+        t = time.perf_counter()
+        ref = irradiance(surf, sh, n_samples=args.ref_samples, n_indirect=args.ref_paths, seed=12345)
+        t_ref = time.perf_counter() - t
+        r = irradiance(surf, sh)
+        e, e_ref = r.irradiance[:scored], ref.irradiance[:scored]
+        covered = np.all(np.abs(e - e_ref) <= r.error[:scored], axis=1).mean()
+        print(f"{name}: relative RMSE {rel_rmse(e, e_ref):.4f} (direct {rel_rmse(r.direct[:scored], ref.direct[:scored]):.4f}, "
+              f"indirect {rel_rmse(r.indirect[:scored], ref.indirect[:scored]):.4f}) [goal <= 0.02]; "
+              f"error estimate covers {covered:.3f} of vertices [goal >= 0.95]; "
+              f"{r.seconds:.2f} s, {r.n_shadow_rays + r.n_bounce_rays:,} rays (reference {t_ref:.1f} s)")
+
+
+if __name__ == "__main__":
+    main()
