@@ -323,3 +323,18 @@ def test_a_vertex_without_a_normal_sees_half_the_sphere_blocked():
     b = bunnell_ao(t, ground=g)[-1]
     assert e == pytest.approx(0.5, abs=0.03)
     assert b == pytest.approx(0.5, abs=0.03)
+
+
+def test_bent_normals_see_the_plane():
+    """A wall on the plane: only the upper half of its hemisphere escapes, so its bent
+    normal is that half's cosine-weighted mean direction, (0, 4 / (3 pi), 2 / 3) with n
+    = z (E[sin theta] = E[cos theta] = 2/3, E[sin phi | up] = 2 / pi); alone it is n."""
+    wall = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0.0]])
+    s = surface_from_arrays(wall, np.array([[0, 1, 2], [0, 2, 3]]), np.tile([0, 0, 1.0], (4, 1)))
+    g = resolve_ground("auto", s.positions, "Y")
+    free = embree_ao(s, n_rays=1024, bent_normals=True).bent_normals
+    bent = embree_ao(s, n_rays=1024, bent_normals=True, ground=g).bent_normals
+    assert np.allclose(free, [0, 0, 1], atol=0.02)  # nothing blocks the wall alone
+    assert (bent[:, 1] > 0.3).all() and np.allclose(np.linalg.norm(bent, axis=1), 1.0)
+    want = np.array([0.0, 4.0 / (3.0 * math.pi), 2.0 / 3.0])
+    assert np.allclose(bent, want / np.linalg.norm(want), atol=0.03)
