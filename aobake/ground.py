@@ -38,10 +38,6 @@ class Ground:
     axis: int
     height: float
 
-    @property
-    def up_name(self) -> str:
-        return "XYZ"[self.axis]
-
     def heights(self, points) -> np.ndarray:
         """(n,) height of each point above the plane, never below 0 (a point within
         rounding below it is on it)."""
