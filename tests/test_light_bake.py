@@ -1,0 +1,251 @@
+"""The lit bake end to end (issue 15): what a bake writes for light in every format, read
+back with plyfile, pxr and pygltflib and checked against values computed here, the plan
+against the transport's own culling, --effects, --weld, --occluders, batch, determinism
+and bad input. Few rays and small meshes: these check wiring, not accuracy."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+
+from aobake.cli import main
+from aobake.io import load_mesh, read_bake
+from aobake.io.color import srgb_to_linear
+from aobake.testing import scenes
+
+CORNELL = Path(__file__).resolve().parents[1] / "data" / "cornell_box.usda"
+# cheap rays: wiring, not accuracy
+FEW = ["--rays", "8", "--light-samples", "4", "--indirect-rays", "4"]
+IRR = ("irradiance_r", "irradiance_g", "irradiance_b")
+
+
+def _ok(runner, args):
+    result = runner.invoke(main, [str(a) for a in args])
+    assert result.exit_code == 0, (result.output, result.stderr, result.exception)
+    return result
+
+
+def _fail(runner, args, code=1):
+    result = runner.invoke(main, [str(a) for a in args])
+    assert result.exit_code == code, (result.output, result.exception)
+    assert result.exception is None or isinstance(result.exception, SystemExit)
+    return result
+
+
+def _one_line(result, *parts):
+    lines = [line for line in result.stderr.splitlines() if not line.startswith("compiling")]
+    assert len(lines) == 1, result.stderr
+    for p in parts:
+        assert p in lines[0], lines[0]
+    return lines[0]
+
+
+@pytest.fixture
+def scene_ply(tmp_path) -> Path:
+    """A sphere on a floor, no colours, no lights (+Z up)."""
+    s, _ = scenes.sphere_on_ground(0.5, 1, gap=0.0, cells=4)
+    path = tmp_path / "scene.ply"
+    trimesh.Trimesh(s.positions, s.faces, process=False).export(path)
+    return path
+
+
+def _ply_columns(path, names):
+    import plyfile
+
+    v = plyfile.PlyData.read(str(path))["vertex"].data
+    return np.stack([np.asarray(v[k], dtype=np.float64) for k in names], axis=1)
+
+
+def _ply_names(path):
+    import plyfile
+
+    return plyfile.PlyData.read(str(path))["vertex"].data.dtype.names
+
+
+def _ply_comments(path):
+    import plyfile
+
+    return plyfile.PlyData.read(str(path)).comments
+
+
+def _usd_primvar(path, name):
+    """A primvar of every baked mesh, flattened, in traversal order (None: none has it)."""
+    from pxr import Usd, UsdGeom
+
+    stage = Usd.Stage.Open(str(path))
+    parts = []
+    for prim in stage.Traverse():
+        if not prim.IsA(UsdGeom.Mesh):
+            continue
+        pv = UsdGeom.PrimvarsAPI(prim).GetPrimvar(name)
+        if pv and pv.HasValue():
+            parts.append(np.asarray(pv.ComputeFlattened(), dtype=np.float64).reshape(len(pv.ComputeFlattened()), -1))
+            assert pv.GetInterpolation() == UsdGeom.Tokens.vertex
+    return np.concatenate(parts) if parts else None
+
+
+def _usd_custom(path):
+    """What the file records under "aobake": the layer's (overlays, copies) and each
+    baked mesh's customData (aobake's own stage), one dict per place."""
+    from pxr import Usd, UsdGeom
+
+    stage = Usd.Stage.Open(str(path))
+    layer = dict(stage.GetRootLayer().customLayerData.get("aobake", {}))
+    meshes = [dict(p.GetCustomDataByKey("aobake") or {}) for p in stage.Traverse() if p.IsA(UsdGeom.Mesh)]
+    return [layer] if layer else meshes
+
+
+def _cornell_albedo():
+    """(n, 3) per-vertex albedo of the Cornell box from its bound UsdPreviewSurface,
+    read here with pxr (not aobake's reader)."""
+    from pxr import Usd, UsdGeom, UsdShade
+
+    stage = Usd.Stage.Open(str(CORNELL))
+    rows = []
+    for prim in stage.Traverse():
+        if not prim.IsA(UsdGeom.Mesh):
+            continue
+        material, _ = UsdShade.MaterialBindingAPI(prim).ComputeBoundMaterial()
+        shader = UsdShade.Shader(material.GetPrim().GetChild("surface"))
+        colour = np.asarray(shader.GetInput("diffuseColor").Get(), dtype=np.float64)
+        n = len(UsdGeom.Mesh(prim).GetPointsAttr().Get())
+        rows.append(np.tile(colour, (n, 1)))
+    return np.concatenate(rows)
+
+
+def _lit(albedo, irradiance, exposure=0.0, emission=0.0):
+    return np.clip((albedo * irradiance / np.pi + emission) * 2.0**exposure, 0.0, 1.0)
+
+
+# -- a scene without light bakes today's AO ----------------------------------------------
+
+
+@pytest.mark.parametrize("suffix", [".ply", ".usda", ".glb"])
+def test_no_light_is_the_ao_bake_byte_for_byte(runner, scene_ply, tmp_path, suffix):
+    auto, ao = tmp_path / f"auto{suffix}", tmp_path / f"ao{suffix}"
+    _ok(runner, ["bake", scene_ply, "-o", auto, "--rays", "8", "-q", "--color"])
+    _ok(runner, ["bake", scene_ply, "-o", ao, "--rays", "8", "-q", "--color", "--effects", "ao"])
+    assert auto.read_bytes() == ao.read_bytes()
+    assert b"irradiance" not in auto.read_bytes()
+
+
+def test_plan_of_a_scene_without_light(runner, scene_ply):
+    r = _ok(runner, ["plan", scene_ply])
+    assert "yes ao" in r.stdout and "no  direct" in r.stdout and "no lights or emitters" in r.stdout
+
+
+# -- every format, every light option ------------------------------------------------------
+
+
+def test_ply_irradiance_split_and_lit_colour(runner, scene_ply, tmp_path):
+    """PLY: float32 irradiance_r/g/b = direct + indirect, the split terms, and --color as
+    the sRGB bytes of clip(0.18 E / pi * 2^exposure) (a file without colours: 0.18 grey)."""
+    out = tmp_path / "lit.ply"
+    args = ["bake", scene_ply, "-o", out, *FEW, "-q", "--light", "distant:0.3,0.2,1:2:1,0.5,0.25"]
+    _ok(runner, args + ["--split-irradiance", "--color", "--exposure", "1.5"])
+    names = _ply_names(out)
+    for n in IRR + ("irradiance_direct_r", "irradiance_indirect_b", "red", "green", "blue", "ao"):
+        assert n in names
+    import plyfile
+
+    v = plyfile.PlyData.read(str(out))["vertex"].data
+    assert v["irradiance_r"].dtype == np.float32 and v["red"].dtype == np.uint8
+    e = _ply_columns(out, IRR)
+    d = _ply_columns(out, [f"irradiance_direct_{c}" for c in "rgb"])
+    i = _ply_columns(out, [f"irradiance_indirect_{c}" for c in "rgb"])
+    np.testing.assert_allclose(e, d + i, rtol=1e-6, atol=1e-6)
+    assert np.isfinite(e).all() and (e >= 0).all() and e.max() > 0
+    # the light's colour shows in the ratio of the channels of the direct term
+    lit_direct = d[:, 0] > 0
+    np.testing.assert_allclose(d[lit_direct, 1] / d[lit_direct, 0], 0.5, rtol=1e-5)
+    # an open floor vertex facing the distant light straight on gets E perp * cos
+    mesh = load_mesh(scene_ply)
+    direction = np.array([0.3, 0.2, 1.0]) / np.linalg.norm([0.3, 0.2, 1.0])
+    cos = mesh.normals @ direction
+    ao = read_bake(out)
+    # (no occluder between an upward vertex far from the sphere and the light)
+    far = (np.linalg.norm(mesh.positions[:, :2], axis=1) > 1.7) & (ao > 0.999)
+    assert far.any()
+    np.testing.assert_allclose(d[far, 0], 2.0 * cos[far], rtol=1e-5)
+    # --color: the lit colour from the read-back irradiance, as sRGB bytes
+    colour = _ply_columns(out, ["red", "green", "blue"]) / 255.0
+    want = _lit(0.18, e, exposure=1.5)
+    np.testing.assert_allclose(srgb_to_linear(colour), want, atol=0.006)
+    # the header records what was computed
+    comments = "\n".join(_ply_comments(out))
+    assert "effects=ao, direct, indirect" in comments and "exposure=1.5" in comments
+
+
+def test_usd_new_file_from_obj_with_light(runner, scene_ply, tmp_path):
+    obj = tmp_path / "scene.obj"
+    trimesh.load(scene_ply, process=False).export(obj)
+    out = tmp_path / "lit.usda"
+    _ok(runner, ["bake", obj, "-o", out, *FEW, "-q", "--light", "point:0,0,3:5", "--color", "--split-irradiance"])
+    e = _usd_primvar(out, "irradiance")
+    d, i = _usd_primvar(out, "irradiance_direct"), _usd_primvar(out, "irradiance_indirect")
+    assert e.shape == (len(read_bake(out)), 3)
+    np.testing.assert_allclose(e, d + i, rtol=1e-6, atol=1e-7)
+    np.testing.assert_allclose(_usd_primvar(out, "displayColor"), _lit(0.18, e), atol=1e-6)
+    custom = _usd_custom(out)[0]
+    assert custom["effects"] == "ao, direct, indirect"
+    assert custom["lights"] == "--light 1" or "1" in custom["lights"]
+
+
+@pytest.fixture(scope="module")
+def cornell_bakes(tmp_path_factory):
+    """The Cornell box baked once to PLY, a USD overlay, a flattened copy and a .usdz."""
+    from click.testing import CliRunner
+
+    d = tmp_path_factory.mktemp("cornell")
+    outs = {k: d / f"box{k}" for k in (".ply", ".usda", ".usdz")}
+    copy = d / "copy.usdc"
+    runner = CliRunner()
+    args = ["bake", CORNELL, *(x for o in outs.values() for x in ("-o", o)), *FEW, "-q", "--color", "--exposure", "1"]
+    _ok(runner, args)
+    _ok(runner, ["bake", CORNELL, "-o", copy, "--no-overlay", *FEW, "-q", "--color", "--exposure", "1"])
+    outs["copy"] = copy
+    return outs
+
+
+def test_cornell_lit_colour_in_every_usd_output(cornell_bakes):
+    albedo = _cornell_albedo()
+    e_ply = _ply_columns(cornell_bakes[".ply"], IRR)
+    assert e_ply.shape == albedo.shape
+    for key in (".usda", ".usdz", "copy"):
+        e = _usd_primvar(cornell_bakes[key], "irradiance")
+        # one computation, written to each file (float32 in each)
+        np.testing.assert_allclose(e, e_ply, rtol=1e-6, atol=1e-7)
+        colour = _usd_primvar(cornell_bakes[key], "displayColor")
+        np.testing.assert_allclose(colour, _lit(albedo, e, exposure=1.0), atol=1e-6)
+        custom = _usd_custom(cornell_bakes[key])
+        assert custom and all(c.get("effects") == "ao, direct, indirect" for c in custom)
+        assert all(c.get("lights") == "/World/light" for c in custom)
+    # the PLY's colour bytes: sRGB of the same lit colour
+    colour = srgb_to_linear(_ply_columns(cornell_bakes[".ply"], ["red", "green", "blue"]) / 255.0)
+    np.testing.assert_allclose(colour, _lit(albedo, e_ply, exposure=1.0), atol=0.006)
+    # the walls' colours bleed: the red wall is redder than it is green
+    red_wall = (albedo[:, 0] > 0.6) & (albedo[:, 1] < 0.1)
+    assert (colour[red_wall, 0] >= colour[red_wall, 1]).all()
+
+
+def test_cornell_overlay_keeps_the_source(cornell_bakes):
+    """The overlay holds the bake only: its layer sublayers the source, which is untouched."""
+    from pxr import Sdf
+
+    layer = Sdf.Layer.FindOrOpen(str(cornell_bakes[".usda"]))
+    assert layer.subLayerPaths and "cornell_box.usda" in layer.subLayerPaths[0]
+    text = layer.ExportToString()
+    assert "RectLight" not in text and "irradiance" in text
+
+
+def test_cornell_preview_of_the_lit_colour(runner, cornell_bakes, tmp_path):
+    png = tmp_path / "box.png"
+    _ok(runner, ["preview", cornell_bakes[".ply"], "--show", "color", "--view", "front", "--size", "64", "-o", png])
+    from tests.test_preview import _decode_png
+
+    img = _decode_png(png.read_bytes()).astype(int)
+    # coloured, not grey: the walls show red and green
+    assert (img[..., 0] - img[..., 1] > 40).any() and (img[..., 1] - img[..., 0] > 40).any()
