@@ -249,3 +249,140 @@ def test_cornell_preview_of_the_lit_colour(runner, cornell_bakes, tmp_path):
     img = _decode_png(png.read_bytes()).astype(int)
     # coloured, not grey: the walls show red and green
     assert (img[..., 0] - img[..., 1] > 40).any() and (img[..., 1] - img[..., 0] > 40).any()
+
+
+# -- glTF: KHR_lights_punctual in, attributes and COLOR_0 out ----------------------------
+
+
+def _with_lights(glb_in, glb_out, lights, light_nodes):
+    """A copy of a .glb with KHR_lights_punctual lights on new root nodes (pygltflib)."""
+    import pygltflib
+
+    g = pygltflib.GLTF2.load(str(glb_in))
+    g.extensions = {"KHR_lights_punctual": {"lights": lights}}
+    g.extensionsUsed = sorted(set(g.extensionsUsed or []) | {"KHR_lights_punctual"})
+    for k, node in enumerate(light_nodes):
+        g.nodes.append(pygltflib.Node(name=node["name"], translation=node.get("translation"),
+                                      rotation=node.get("rotation"),
+                                      extensions={"KHR_lights_punctual": {"light": k}}))  # fmt: skip
+        g.scenes[g.scene or 0].nodes.append(len(g.nodes) - 1)
+    g.save(str(glb_out))
+    return glb_out
+
+
+# a point light above the sphere, a spot looking down at one side whose cone misses
+# most of the floor, a directional light from a low angle, and a point light under the
+# floor with a short range (in reach of nothing)
+PUNCTUAL = [
+    {"type": "point", "intensity": 8.0, "color": [1.0, 0.9, 0.8]},
+    {"type": "spot", "intensity": 20.0, "spot": {"innerConeAngle": 0.1, "outerConeAngle": 0.3}},
+    {"type": "directional", "intensity": 1.5},
+    {"type": "point", "intensity": 5.0, "range": 0.5},
+]
+_HALF = float(np.sqrt(0.5))
+PUNCTUAL_NODES = [
+    {"name": "bulb", "translation": [0.0, 0.0, 2.0]},
+    {"name": "spot", "translation": [1.0, 1.0, 1.5]},  # -Z: straight down (+Z up scene)
+    {"name": "sun", "rotation": [_HALF, 0.0, 0.0, _HALF]},  # -Z turned about x: towards -Y
+    {"name": "under", "translation": [0.0, 0.0, -3.0]},
+]
+
+
+@pytest.fixture
+def lit_glb(runner, scene_ply, tmp_path):
+    plain = tmp_path / "plain.glb"
+    _ok(runner, ["bake", scene_ply, "-o", plain, "--rays", "4", "-q"])
+    return _with_lights(plain, tmp_path / "lit.glb", PUNCTUAL, PUNCTUAL_NODES)
+
+
+def _gltf_attribute(path, name):
+    from aobake.io.gltf import accessor_values, as_float, read_document, scene_slots
+
+    doc = read_document(path)
+    rows = []
+    for slot in scene_slots(doc):
+        a = doc.json["meshes"][slot.mesh]["primitives"][slot.primitive]["attributes"][name]
+        rows.append(as_float(accessor_values(doc, a), doc.json["accessors"][a].get("normalized", False)))
+    return np.concatenate(rows)
+
+
+def test_gltf_kept_with_punctual_lights(runner, lit_glb, tmp_path):
+    import pygltflib
+
+    out = tmp_path / "out.glb"
+    _ok(runner, ["bake", lit_glb, "-o", out, *FEW, "-q", "--color", "--split-irradiance"])
+    g = pygltflib.GLTF2.load(str(out))
+    # the input's lights are kept as they were
+    assert g.extensions["KHR_lights_punctual"]["lights"] == PUNCTUAL
+    attrs = g.meshes[0].primitives[0].attributes
+    present = {k for k, v in vars(attrs).items() if v is not None}
+    assert {"_IRRADIANCE", "_IRRADIANCE_DIRECT", "_IRRADIANCE_INDIRECT", "COLOR_0", "_AO"} <= present
+    e = _gltf_attribute(out, "_IRRADIANCE")
+    d, i = _gltf_attribute(out, "_IRRADIANCE_DIRECT"), _gltf_attribute(out, "_IRRADIANCE_INDIRECT")
+    np.testing.assert_allclose(e, d + i, rtol=1e-6, atol=1e-7)
+    np.testing.assert_allclose(_gltf_attribute(out, "COLOR_0")[:, :3], _lit(0.18, e), atol=1e-6)
+    assert e.max() > 0 and np.isfinite(e).all()
+
+
+def test_gltf_new_file_from_ply_with_light(runner, scene_ply, tmp_path):
+    out = tmp_path / "new.glb"
+    _ok(runner, ["bake", scene_ply, "-o", out, "-o", tmp_path / "new.ply", *FEW, "-q", "--color",
+                 "--light", "point:0,0,2:8"])  # fmt: skip
+    e = _gltf_attribute(out, "_IRRADIANCE")
+    np.testing.assert_allclose(e, _ply_columns(tmp_path / "new.ply", IRR), rtol=1e-6)
+    np.testing.assert_allclose(_gltf_attribute(out, "COLOR_0")[:, :3], _lit(0.18, e), atol=1e-6)
+
+
+# -- the plan against the transport ---------------------------------------------------------
+
+
+def _plan_reach(stdout):
+    """light name -> receivers in reach (0 for a skipped light), from `aobake plan`."""
+    out = {}
+    for line in stdout.splitlines():
+        line = line.strip()
+        if line.startswith("light "):
+            name = line.split()[1]
+            out[name] = 0 if "skipped" in line else int(line.split(": ")[1].split()[0])
+    return out
+
+
+def _transport_stats(path, lights=()):
+    from aobake.io.lights import read_shading
+    from aobake.methods.embree.light import irradiance
+
+    surface = load_mesh(path)
+    shading = read_shading(path, surface, cli_lights=lights)
+    result = irradiance(surface, shading, n_samples=2, bounces=0)
+    return {s.name: s for s in result.lights}
+
+
+@pytest.mark.parametrize("scene", ["cornell", "punctual"])
+def test_plan_reach_equals_the_transports_culling(runner, scene, lit_glb):
+    path = CORNELL if scene == "cornell" else lit_glb
+    plan = _plan_reach(_ok(runner, ["plan", path]).stdout)
+    stats = _transport_stats(path)
+    n = load_mesh(path).n_vertices
+    names = [k for k in stats if k != "emitters"]
+    assert sorted(plan) == sorted(names)
+    for name in names:
+        assert plan[name] == n - stats[name].skipped, name
+    if scene == "punctual":
+        # every culling reason is exercised
+        assert stats["spot"].cone > 0 and stats["under"].range > 0 and stats["sun"].behind > 0
+        assert 0 < plan["spot"] < n and plan["under"] == 0
+
+
+def test_plan_output(runner):
+    r = _ok(runner, ["plan", CORNELL, "--light-samples", "4", "--indirect-rays", "2", "--rays", "8"])
+    lines = r.stdout.splitlines()
+    assert lines[0].startswith("cornell_box.usda: 1037 vertices")
+    assert "yes ao" in r.stdout and "yes direct    the scene has 1 light" in r.stdout
+    assert "yes indirect  1 bounce off albedo above zero" in r.stdout
+    reach = _plan_reach(r.stdout)["/World/light"]
+    assert f"{reach} receivers in reach, {4 * reach} shadow rays" in r.stdout
+    # ao 1037 * 8, shadow 4 * reach, bounce 1037 * 2 * (1 + 1 light)
+    ao, shadow, bounce = 1037 * 8, 4 * reach, 1037 * 2 * 2
+    assert f"expected rays: {ao + shadow + bounce:,} (ao {ao:,}, shadow {shadow:,}, bounce {bounce:,})" in r.stdout
+    r = _ok(runner, ["plan", CORNELL, "--effects", "ao"])
+    assert "yes ao" in r.stdout and "no  direct    not asked for (--effects)" in r.stdout
