@@ -386,3 +386,158 @@ def test_plan_output(runner):
     assert f"expected rays: {ao + shadow + bounce:,} (ao {ao:,}, shadow {shadow:,}, bounce {bounce:,})" in r.stdout
     r = _ok(runner, ["plan", CORNELL, "--effects", "ao"])
     assert "yes ao" in r.stdout and "no  direct    not asked for (--effects)" in r.stdout
+
+
+# -- --effects, --bounces, --method ----------------------------------------------------------
+
+LIGHT = ["--light", "point:0.4,0.3,1.6:6:1,0.8,0.6"]
+
+
+def test_effects_ao_direct_is_the_direct_term_bit_for_bit(runner, scene_ply, tmp_path):
+    split, direct, b0 = tmp_path / "split.ply", tmp_path / "direct.ply", tmp_path / "b0.ply"
+    _ok(runner, ["bake", scene_ply, "-o", split, *FEW, "-q", *LIGHT, "--split-irradiance", "--seed", "3"])
+    _ok(runner, ["bake", scene_ply, "-o", direct, *FEW, "-q", *LIGHT, "--effects", "ao,direct", "--seed", "3"])
+    _ok(runner, ["bake", scene_ply, "-o", b0, *FEW, "-q", *LIGHT, "--bounces", "0", "--seed", "3"])
+    d = _ply_columns(split, [f"irradiance_direct_{c}" for c in "rgb"])
+    assert (_ply_columns(split, [f"irradiance_indirect_{c}" for c in "rgb"]) > 0).any()
+    np.testing.assert_array_equal(_ply_columns(direct, IRR), d)
+    np.testing.assert_array_equal(_ply_columns(b0, IRR), d)
+    for path in (direct, b0):
+        assert "aobake effects=ao, direct" in _ply_comments(path)
+    # the AO is the AO of an unlit bake
+    ao = tmp_path / "ao.ply"
+    _ok(runner, ["bake", scene_ply, "-o", ao, *FEW, "-q", "--seed", "3"])
+    np.testing.assert_array_equal(read_bake(ao), read_bake(direct))
+
+
+def test_effects_the_scene_does_not_call_for_is_one_line(runner, scene_ply, tmp_path):
+    out = tmp_path / "o.ply"
+    r = _fail(runner, ["bake", scene_ply, "-o", out, "--rays", "4", "--effects", "ao,direct"])
+    _one_line(r, "scene.ply", "--effects direct", "no lights or emitters")
+    assert not out.exists()
+    r = _fail(runner, ["bake", scene_ply, "-o", out, "--rays", "4", *LIGHT, "--effects", "ao,indirect"])
+    _one_line(r, "scene.ply", "indirect needs direct")
+    r = _fail(runner, ["bake", scene_ply, "-o", out, "--rays", "4", *LIGHT, "--bounces", "0", "--effects", "ao,direct,indirect"])
+    _one_line(r, "scene.ply", "--bounces 0")
+    assert not out.exists()
+
+
+def test_bunnell_on_a_lit_scene_bakes_ao_with_a_warning(runner, tmp_path):
+    lit, ao = tmp_path / "lit.ply", tmp_path / "ao.ply"
+    r = _ok(runner, ["bake", CORNELL, "-o", lit, "--method", "bunnell"])
+    warnings = [line for line in r.stderr.splitlines() if "not baked" in line]
+    assert len(warnings) == 1 and "cornell_box.usda" in warnings[0] and "--method embree" in warnings[0]
+    _ok(runner, ["bake", CORNELL, "-o", ao, "--method", "bunnell", "--effects", "ao", "-q"])
+    assert lit.read_bytes() == ao.read_bytes()
+    r = _fail(runner, ["bake", CORNELL, "-o", lit.with_suffix(".usda"), "--method", "bunnell", "--effects", "ao,direct"])
+    _one_line(r, "cornell_box.usda", "--method bunnell computes ambient occlusion only")
+    assert not lit.with_suffix(".usda").exists()
+
+
+# -- --weld, --occluders -------------------------------------------------------------------
+
+
+def test_weld_light_equals_the_welded_mesh(runner, scene_ply, tmp_path):
+    """A soup (every triangle its own vertices) baked with --weld gets the light of the
+    shared-vertex mesh: a distant light and no bounce are exact, whatever the vertex order."""
+    mesh = trimesh.load(scene_ply, process=False)
+    soup = tmp_path / "soup.ply"
+    trimesh.Trimesh(mesh.vertices[mesh.faces.reshape(-1)], np.arange(mesh.faces.size).reshape(-1, 3),
+                    process=False).export(soup)  # fmt: skip
+    args = [*FEW, "-q", "--light", "distant:0.5,-0.3,1:3", "--bounces", "0"]
+    _ok(runner, ["bake", soup, "-o", tmp_path / "w.ply", "--weld", *args])
+    _ok(runner, ["bake", scene_ply, "-o", tmp_path / "m.ply", *args])
+    welded = _ply_columns(tmp_path / "w.ply", IRR)
+    direct = _ply_columns(tmp_path / "m.ply", IRR)
+    np.testing.assert_allclose(welded, direct[mesh.faces.reshape(-1)], rtol=1e-5, atol=1e-6)
+    assert direct.max() > 0 and (direct[:, 0] == 0).any()  # lit and shadowed vertices
+
+
+def test_occluder_left_out_casts_no_shadow(runner, tmp_path):
+    """--occluders without the tall block: the room's light is the light of the room
+    without the block (the room's vertices come first: their samples line up)."""
+    import shutil
+
+    from pxr import Usd
+
+    without = tmp_path / "without.usda"
+    shutil.copy(CORNELL, without)  # (editing the bundled layer would change it for this process)
+    stage = Usd.Stage.Open(str(without))
+    stage.RemovePrim("/World/blocks/tall")
+    stage.Save()
+    args = [*FEW, "-q", "--bounces", "0"]
+    occl = ["--occluders", "/World/box/*", "--occluders", "/World/blocks/short"]
+    _ok(runner, ["bake", CORNELL, "-o", tmp_path / "o.ply", *args, *occl])
+    _ok(runner, ["bake", without, "-o", tmp_path / "w.ply", *args])
+    _ok(runner, ["bake", CORNELL, "-o", tmp_path / "all.ply", *args])
+    n_room = sum(len(p.GetAttribute("points").Get()) for p in stage.Traverse() if p.GetPath().HasPrefix("/World/box") and p.GetTypeName() == "Mesh")
+    o = _ply_columns(tmp_path / "o.ply", IRR)[:n_room]
+    w = _ply_columns(tmp_path / "w.ply", IRR)[:n_room]
+    everything = _ply_columns(tmp_path / "all.ply", IRR)[:n_room]
+    np.testing.assert_array_equal(o, w)
+    assert (o > everything).any() and (o >= everything).all()  # the tall block's shadow is gone
+
+
+# -- batch -----------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def client():
+    from distributed import Client, LocalCluster
+
+    cluster = LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address="127.0.0.1:0", silence_logs=50)
+    c = Client(cluster)
+    yield c
+    c.close()
+    cluster.close()
+
+
+def test_batch_lit_input_equals_bake_and_split_refuses_it(runner, client, scene_ply, tmp_path):
+    import shutil
+
+    from aobake import batch
+
+    lib = tmp_path / "lib"
+    lib.mkdir()
+    shutil.copy(CORNELL, lib / "cornell_box.usda")
+    shutil.copy(scene_ply, lib / "scene.ply")
+    options = {"n_rays": 8, "light_samples": 4, "indirect_rays": 4}
+    settings = batch.Settings(options=options, color=True)
+    r = batch.run_batch([lib], tmp_path / "out", formats=("ply", "usdc"), settings=settings, client=client)
+    assert (r.done, r.failed) == (2, 0)
+    for suffix in (".ply", ".usdc"):
+        ref = tmp_path / f"ref{suffix}"
+        _ok(runner, ["bake", lib / "cornell_box.usda", "-o", ref, *FEW, "-q", "--color"])
+        if suffix == ".ply":
+            assert (tmp_path / "out" / "cornell_box.ply").read_bytes() == ref.read_bytes()
+        else:  # a flattened copy: same values (the layer records its own path)
+            np.testing.assert_array_equal(_usd_primvar(tmp_path / "out" / "cornell_box.usdc", "irradiance"),
+                                          _usd_primvar(ref, "irradiance"))  # fmt: skip
+    # --split 2: the lit input fails with one line, the unlit one is baked
+    r = batch.run_batch([lib], tmp_path / "split", formats=("ply",), settings=settings, client=client, split=2)
+    status = {x["input"]: x for x in r.records}
+    assert status["scene.ply"]["status"] == "done" and status["cornell_box.usda"]["status"] == "failed"
+    error = status["cornell_box.usda"]["error"]
+    assert "\n" not in error and "cornell_box.usda" in error and "split" in error
+    assert not (tmp_path / "split" / "cornell_box.ply").exists()
+    # --effects ao with --split: both baked, the AO of an unsplit bake
+    ao = batch.Settings(options=options, effects=("ao",))
+    r = batch.run_batch([lib], tmp_path / "ao", formats=("ply",), settings=ao, client=client, split=2)
+    assert (r.done, r.failed) == (2, 0)
+    _ok(runner, ["bake", lib / "cornell_box.usda", "-o", tmp_path / "ao.ply", *FEW, "-q", "--effects", "ao"])
+    assert (tmp_path / "ao" / "cornell_box.ply").read_bytes() == (tmp_path / "ao.ply").read_bytes()
+
+
+# -- determinism -------------------------------------------------------------------------------
+
+
+def test_same_seed_same_irradiance_for_any_thread_count(runner, tmp_path):
+    outs = []
+    for threads in ("1", "2"):
+        out = tmp_path / f"t{threads}.ply"
+        _ok(runner, ["bake", CORNELL, "-o", out, *FEW, "-q", "--seed", "7", "--threads", threads, "--split-irradiance"])
+        outs.append(out)
+    assert outs[0].read_bytes() == outs[1].read_bytes()
+    other = tmp_path / "s8.ply"
+    _ok(runner, ["bake", CORNELL, "-o", other, *FEW, "-q", "--seed", "8"])
+    assert not np.array_equal(_ply_columns(other, IRR), _ply_columns(outs[0], IRR))
