@@ -541,3 +541,71 @@ def test_same_seed_same_irradiance_for_any_thread_count(runner, tmp_path):
     other = tmp_path / "s8.ply"
     _ok(runner, ["bake", CORNELL, "-o", other, *FEW, "-q", "--seed", "8"])
     assert not np.array_equal(_ply_columns(other, IRR), _ply_columns(outs[0], IRR))
+
+
+# -- bad input through the CLI ----------------------------------------------------------------
+
+QUAD_USDA = """#usda 1.0
+(
+    upAxis = "Z"
+)
+def Mesh "floor"
+{{
+    int[] faceVertexCounts = [4]
+    int[] faceVertexIndices = [0, 1, 2, 3]
+    point3f[] points = [(-1, -1, 0), (1, -1, 0), (1, 1, 0), (-1, 1, 0)]
+}}
+{light}
+"""
+
+
+@pytest.mark.parametrize(
+    "light, words",
+    [
+        ('def SphereLight "bulb"\n{\n float inputs:intensity = nan\n}', ["/bulb", "intensity"]),
+        ('def DistantLight "sun"\n{\n color3f inputs:color = (1, -0.5, 1)\n}', ["/sun", "colo"]),
+        ('def RectLight "panel"\n{\n float inputs:width = 0\n float inputs:height = 1\n}', ["/panel"]),
+        ('def CylinderLight "tube"\n{\n float inputs:length = 1\n}', ["/tube", "CylinderLight"]),
+    ],
+    ids=["nan-intensity", "negative-colour", "zero-area-rect", "unknown-type"],
+)
+def test_bad_usd_light_is_one_line_and_no_output(runner, tmp_path, light, words):
+    src = tmp_path / "scene.usda"
+    src.write_text(QUAD_USDA.format(light=light))
+    out = tmp_path / "out.ply"
+    r = _fail(runner, ["bake", src, "-o", out, "-o", tmp_path / "out.usda", "--rays", "4"])
+    _one_line(r, "scene.usda", *words)
+    assert "Traceback" not in r.output
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["scene.usda"]
+    # aobake plan says the same
+    r = _fail(runner, ["plan", src])
+    _one_line(r, "scene.usda", *words)
+
+
+@pytest.mark.parametrize(
+    "spec",
+    ["distnt:0,0,1", "point:0,0", "distant:0,0,1:nan", "point:0,0,1:1:1,-1,1", "distant:0,0,0"],
+)
+def test_bad_light_spec_is_a_usage_error(runner, scene_ply, tmp_path, spec):
+    out = tmp_path / "o.ply"
+    r = _fail(runner, ["bake", scene_ply, "-o", out, "--light", spec], code=2)
+    assert "--light" in r.stderr and "Traceback" not in r.output
+    assert not out.exists()
+
+
+def test_lights_are_read_from_the_file_on_disk_not_a_stale_layer(runner, tmp_path):
+    """A stage held open on the file (a host application, an earlier bake in this
+    process) does not hide a rewrite from the light reader, as it does not from the
+    mesh reader."""
+    from pxr import Usd
+
+    src = tmp_path / "scene.usda"
+    src.write_text(QUAD_USDA.format(light='def DistantLight "sun"\n{\n float inputs:intensity = 2\n bool inputs:normalize = 1\n}'))
+    held = Usd.Stage.Open(str(src))
+    out = tmp_path / "o.ply"
+    _ok(runner, ["bake", src, "-o", out, *FEW, "-q"])
+    np.testing.assert_allclose(_ply_columns(out, IRR), 2.0, rtol=1e-6)  # open quad under the sun
+    src.write_text(QUAD_USDA.format(light='def DistantLight "sun"\n{\n float inputs:intensity = 3\n bool inputs:normalize = 1\n}'))
+    _ok(runner, ["bake", src, "-o", out, *FEW, "-q"])
+    np.testing.assert_allclose(_ply_columns(out, IRR), 3.0, rtol=1e-6)
+    assert held.GetPrimAtPath("/sun")  # (still held)
