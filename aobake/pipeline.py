@@ -1122,6 +1122,9 @@ def warm_up(progress: Progress | None = None) -> WarmUpReport:
             for flags, extra in _WARM_UP_VARIANTS.get(method, ()):
                 bake_file(d / "scene.ply", d / f"{method}_variant.ply", method=method, progress=progress, **extra)
                 steps.append(f"bake --method {method} {flags}")
+        bake_file(d / "scene.ply", d / "lit.ply", method=METHODS[0], lights=("point:0,3,0:10",), color=True,
+                  n_rays=4, light_samples=2, indirect_rays=2, progress=progress)  # the light kernels
+        steps.append("bake --light")
         fit_field_file(d / "cube.ply", d / "cube.npz", progress=progress, resolution=4, radial_samples=8)
         steps.append("field")
         grid = d / "grid.ply"
