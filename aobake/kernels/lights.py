@@ -453,8 +453,10 @@ def hit_samples(
                 kind = kinds[c]
                 if kind == DOME and params[c, P_SHADOW] > 0.0:
                     continue
-                if reach_code(kind, params[c], ox, oy, oz, nx, ny, nz) != REACH_OK:
-                    continue
+                if kind != DISTANT and kind != DOME:  # the range; the rest makes w = 0
+                    tx, ty, tz = params[c, P_POS] - ox, params[c, P_POS + 1] - oy, params[c, P_POS + 2] - oz
+                    if not tx * tx + ty * ty + tz * tz < params[c, P_RANGE] * params[c, P_RANGE]:
+                        continue
                 shadow = params[c, P_SHADOW] > 0.0
             elif not has_emitters:
                 continue
