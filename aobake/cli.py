@@ -809,12 +809,20 @@ def sweep(mesh, out_dir, reference_rays, repeats, no_plot, no_fields, up, seed, 
 )
 @click.option("--size", type=click.IntRange(16, 8192), default=640, show_default=True, help="Image side in pixels.")
 @click.option("--up", type=click.Choice(["Y", "Z"]), default=None, help="Up axis [default: the file's, else Y].")
-def preview(bake, output, view, azimuth, elevation, size, up):
-    """Render BAKE (a PLY, USD or glTF file with `ao`) to a PNG: AO as grey, white = open."""
+@click.option(
+    "--show",
+    type=click.Choice(["ao", "color"]),
+    default="ao",
+    show_default=True,
+    help="ao: the AO as grey; color: the vertex colours (--color's, the lit colour of a lit bake).",
+)
+def preview(bake, output, view, azimuth, elevation, size, up, show):
+    """Render BAKE (a PLY, USD or glTF file with `ao`) to a PNG: AO as grey, white = open,
+    or with --show color its vertex colours."""
     from .pipeline import preview_file
 
     with compile_notice(False):
-        preview_file(bake, output, size=size, up=up, view=view, azimuth=azimuth, elevation=elevation)
+        preview_file(bake, output, size=size, up=up, view=view, azimuth=azimuth, elevation=elevation, show=show)
 
 
 @main.command("warm-up")

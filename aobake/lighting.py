@@ -164,11 +164,14 @@ def plan_for(surface: Surface, shading: Shading, method: str, options: dict, eff
 
 
 def read(source: Any, surface: Surface, *, lights: Sequence = (), scene_lights: bool = True) -> Shading:
-    """The shading of ``surface``: read from ``source`` when it is a file, else every
-    surface 0.18 grey, lit by ``lights`` alone."""
+    """The shading of ``surface``: read from ``source`` when it is a file (or a surface
+    :func:`aobake.io.load_mesh` read from one: batch's --split ranges get those), else
+    every surface 0.18 grey, lit by ``lights`` alone."""
     from .io.lights import parse_light_spec, read_shading
     from .shading import default_shading
 
+    if not isinstance(source, (str, Path)) and source is surface and surface.metadata.get("path"):
+        source = surface.metadata["path"]
     if isinstance(source, (str, Path)):
         return read_shading(source, surface, scene_lights=scene_lights, cli_lights=lights, dark_materials=False)
     parsed = [parse_light_spec(x, k) if isinstance(x, str) else x for k, x in enumerate(lights, 1)]

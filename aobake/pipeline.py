@@ -821,19 +821,24 @@ def preview_file(
     view: str = "iso",
     azimuth: float | None = None,
     elevation: float | None = None,
+    show: str = "ao",
 ) -> None:
-    """Render a bake (a mesh file carrying ``ao``: PLY, USD or glTF) to a PNG, AO as grey."""
-    from .io import load_mesh, read_bake
+    """Render a bake (a mesh file carrying ``ao``: PLY, USD or glTF) to a PNG, AO as grey;
+    ``show="color"``: its vertex colours (the lit colour of ``--color``) instead."""
+    from .io import load_mesh, read_bake, read_colours
     from .tools.preview import preview_png, write_png
 
     if Path(output).suffix.lower() != ".png":
         raise FormatError(f"{Path(output).name}: previews are written as PNG; use a .png suffix")
     check_output_dir(output)
     surface = load_mesh(bake)
-    ao = read_bake(bake, n_vertices=surface.n_vertices)
+    if show == "color":
+        values = read_colours(bake, n_vertices=surface.n_vertices)
+    else:
+        values = read_bake(bake, n_vertices=surface.n_vertices)
     up = up or surface.metadata.get("up_axis") or DEFAULT_UP_AXIS
     png = preview_png(
-        surface.positions, surface.faces, ao, size=size, up=up, view=view, azimuth=azimuth, elevation=elevation
+        surface.positions, surface.faces, values, size=size, up=up, view=view, azimuth=azimuth, elevation=elevation
     )
     write_png(output, png)
 
@@ -1123,6 +1128,9 @@ def warm_up(progress: Progress | None = None) -> WarmUpReport:
             for flags, extra in _WARM_UP_VARIANTS.get(method, ()):
                 bake_file(d / "scene.ply", d / f"{method}_variant.ply", method=method, progress=progress, **extra)
                 steps.append(f"bake --method {method} {flags}")
+        bake_file(d / "scene.ply", d / "lit.ply", method=METHODS[0], lights=("point:0,3,0:10",), color=True,
+                  n_rays=4, light_samples=2, indirect_rays=2, progress=progress)  # the light kernels
+        steps.append("bake --light")
         fit_field_file(d / "cube.ply", d / "cube.npz", progress=progress, resolution=4, radial_samples=8)
         steps.append("field")
         grid = d / "grid.ply"

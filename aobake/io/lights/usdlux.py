@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 import warnings
+from pathlib import Path
 
 import numpy as np
 
@@ -32,15 +33,18 @@ def read_usd(reading: Reading, *, scene_lights: bool, extra_lights: bool = False
     """Fill ``reading`` from the USD stage the surface was read from. The materials are
     read only where something may light the scene (its lights, an emissive material, or
     ``extra_lights``: lights given apart, ``--light``)."""
-    from pxr import Usd
+    from pxr import Sdf, Usd
+
+    from ..usd import _open_fresh
 
     surface = reading.surface
     source = surface.metadata.get("path") or str(reading.path)
-    # the mesh reader opened this stage first and reported what USD printed then
+    # the mesh reader opened this stage first and reported what USD printed then; opened
+    # as it did (fresh from disk when a stale layer is registered), so both read one file
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         with foreign_stderr(reading.path.name):
-            stage = Usd.Stage.Open(str(source))
+            stage = _open_fresh(Path(source), Sdf, Usd)
     if stage is None:
         raise InputError(reading.path, "cannot read as USD: the stage did not open")
     time = surface.metadata.get("time")
