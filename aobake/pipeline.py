@@ -8,7 +8,7 @@ from __future__ import annotations
 import contextlib
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 from time import perf_counter
 from typing import Any
@@ -430,6 +430,7 @@ def _bake_range(
     ``light``: a lit scene's :class:`aobake.lighting.LightJob`, computed on the same
     scene (whole meshes only). ``ground``: a resolved plane every AO method counts."""
     totals = None
+    welded = inverse = None
     with CompileWatch() as watch:
         t0 = perf_counter()
         if weld:
@@ -449,27 +450,28 @@ def _bake_range(
         else:
             ao, n_rays, contacts, attributes = _compute(surface, method, options, progress, vertices, **_plane(ground))
         if light is not None and light.lit:
-            attributes, totals = _compute_light(surface, method, options, progress, vertices, weld, selection, light, attributes)
+            attributes, totals = _compute_light(
+                surface, method, options, progress, vertices, (welded, inverse), selection, light, attributes
+            )
         seconds = perf_counter() - t0 - watch.seconds
     lo, hi = (0, surface.n_vertices) if vertices is None else vertices
     return PartResult((lo, hi), ao, n_rays, contacts, seconds, watch.seconds, attributes, totals)
 
 
-def _compute_light(surface, method, options, progress, vertices, weld, selection, light, attributes):
+def _compute_light(surface, method, options, progress, vertices, welding, selection, light, attributes):
     """A lit scene's irradiance attributes added to ``attributes``, on the scene the AO
-    was traced on (welded, occluders only); and the light's ray totals."""
+    was traced on (``welding``: the AO's ``(welded surface, inverse)``, or Nones; the
+    occluders only); and the light's ray totals."""
     from . import lighting
-    from .mesh import weld_vertices
 
     if vertices is not None and tuple(vertices) != (0, surface.n_vertices):
         raise InputError(surface.source, "a lit scene is baked whole: it takes no vertex range")
-    faces = None if selection is None or selection.occluders.all() else selection.kept_faces(surface)
-    inverse = None
-    scene = surface
-    if weld:
-        scene, inverse = weld_vertices(surface)
-    if faces is not None:
-        scene = replace(scene, faces=scene.faces[faces])
+    welded, inverse = welding
+    scene = surface if welded is None else welded
+    faces = None
+    if selection is not None and not selection.occluders.all():
+        faces = selection.kept_faces(surface)
+        scene = selection.scene(scene)
     extra, totals = lighting.compute(light, scene, method, options, progress, faces=faces, inverse=inverse)
     return {**attributes, **extra}, totals
 

@@ -169,14 +169,11 @@ def _local_matrix(node: dict) -> np.ndarray:
     return m
 
 
-def scene_slots(doc: Document) -> list[Slot]:
-    """Every triangle primitive of the default scene, depth-first in the file's node
-    order (children as listed), with its world positions: the order trimesh's parts
-    take (:func:`aobake.io.trimesh_formats.read_parts`)."""
-    gl = doc.json
+def scene_nodes(gl: dict):
+    """(index, world (4, 4) column-vector matrix) of every node of the default scene,
+    depth-first in file order (children as listed; a node reached twice is skipped)."""
     nodes, scenes = gl.get("nodes", []), gl.get("scenes", [])
     roots = scenes[gl.get("scene", 0)].get("nodes", []) if scenes else []
-    slots: list[Slot] = []
     seen: set[int] = set()
     stack = [(index, np.eye(4)) for index in reversed(roots)]
     while stack:
@@ -184,20 +181,27 @@ def scene_slots(doc: Document) -> list[Slot]:
         if index in seen or not 0 <= index < len(nodes):
             continue
         seen.add(index)
-        node = nodes[index]
-        world = parent @ _local_matrix(node)
-        if "mesh" in node:
-            for k, primitive in enumerate(gl["meshes"][node["mesh"]].get("primitives", [])):
-                if primitive.get(
-                    "mode", 4
-                ) not in TRIANGLE_MODES or "POSITION" not in primitive.get("attributes", {}):
-                    continue
-                a = primitive["attributes"]["POSITION"]
-                local = as_float(
-                    accessor_values(doc, a), gl["accessors"][a].get("normalized", False)
-                )
-                slots.append(Slot(index, node["mesh"], k, local @ world[:3, :3].T + world[:3, 3]))
-        stack.extend((child, world) for child in reversed(node.get("children", [])))
+        world = parent @ _local_matrix(nodes[index])
+        yield index, world
+        stack.extend((child, world) for child in reversed(nodes[index].get("children", [])))
+
+
+def scene_slots(doc: Document) -> list[Slot]:
+    """Every triangle primitive of the default scene, in :func:`scene_nodes`' order, with
+    its world positions: the order trimesh's parts take
+    (:func:`aobake.io.trimesh_formats.read_parts`)."""
+    gl = doc.json
+    slots: list[Slot] = []
+    for index, world in scene_nodes(gl):
+        node = gl["nodes"][index]
+        if "mesh" not in node:
+            continue
+        for k, primitive in enumerate(gl["meshes"][node["mesh"]].get("primitives", [])):
+            if primitive.get("mode", 4) not in TRIANGLE_MODES or "POSITION" not in primitive.get("attributes", {}):
+                continue
+            a = primitive["attributes"]["POSITION"]
+            local = as_float(accessor_values(doc, a), gl["accessors"][a].get("normalized", False))
+            slots.append(Slot(index, node["mesh"], k, local @ world[:3, :3].T + world[:3, 3]))
     return slots
 
 
@@ -239,6 +243,13 @@ def read_ao_gltf(path: str | Path) -> np.ndarray:
     InputError
         Unreadable file, or a triangle primitive without ``_AO``.
     """
+    return _scene_attribute(path, "_AO", "_AO")[:, 0]
+
+
+def _scene_attribute(path: str | Path, key: str, what: str) -> np.ndarray:
+    """Attribute ``key`` of every triangle primitive of the default scene, concatenated
+    in :func:`aobake.io.load_mesh`'s part order, as float64 rows (normalized integers
+    decoded); a primitive without it is an InputError saying it lacks ``what``."""
     path = Path(path)
     try:
         doc = read_document(path)
@@ -250,16 +261,13 @@ def read_ao_gltf(path: str | Path) -> np.ndarray:
     values = []
     for slot in slots:
         attributes = doc.json["meshes"][slot.mesh]["primitives"][slot.primitive]["attributes"]
-        if "_AO" not in attributes:
+        if key not in attributes:
             name = doc.json["nodes"][slot.node].get("name", slot.node)
-            raise InputError(path, f"node {name!r} has a primitive without _AO")
-        a = attributes["_AO"]
-        values.append(
-            as_float(accessor_values(doc, a), doc.json["accessors"][a].get("normalized", False))[
-                :, 0
-            ]
-        )
-    return np.concatenate(values) if values else np.zeros(0)
+            raise InputError(path, f"node {name!r} has a primitive without {what}")
+        a = attributes[key]
+        rows = as_float(accessor_values(doc, a), doc.json["accessors"][a].get("normalized", False))
+        values.append(rows.reshape(len(rows), -1))
+    return np.concatenate(values) if values else np.zeros((0, 1))
 
 
 def check_images(doc: Document) -> None:
@@ -638,21 +646,5 @@ def _data_uri(data: bytes) -> str:
 
 def read_colours_gltf(path: str | Path) -> np.ndarray:
     """(n, 3) linear ``COLOR_0`` of every triangle primitive, in :func:`read_ao_gltf`'s order."""
-    path = Path(path)
-    try:
-        doc = read_document(path)
-        slots = scene_slots(doc)
-    except InputError:
-        raise
-    except (OSError, ValueError, KeyError, IndexError, TypeError) as exc:
-        raise InputError(path, f"cannot read as glTF: {exc}") from exc
-    values = []
-    for slot in slots:
-        attributes = doc.json["meshes"][slot.mesh]["primitives"][slot.primitive]["attributes"]
-        if "COLOR_0" not in attributes:
-            name = doc.json["nodes"][slot.node].get("name", slot.node)
-            raise InputError(path, f"node {name!r} has a primitive without COLOR_0 colours to show")
-        a = attributes["COLOR_0"]
-        rgb = as_float(accessor_values(doc, a), doc.json["accessors"][a].get("normalized", False))[:, :3]
-        values.append(rgb)
-    return np.concatenate(values) if values else np.zeros((0, 3))
+    rgb = _scene_attribute(path, "COLOR_0", "COLOR_0 colours to show")
+    return rgb[:, :3] if rgb.shape[1] >= 3 else np.zeros((0, 3))

@@ -11,7 +11,7 @@ import numpy as np
 
 from ...errors import InputError, OutputError
 from ...shading import DEFAULT_ALBEDO, Light
-from ..gltf import Document, _local_matrix, accessor_values, as_float, match_parts, read_document
+from ..gltf import Document, accessor_values, as_float, match_parts, read_document, scene_nodes
 from .reading import Reading, check_colour
 
 #: KHR_lights_punctual's types and the :class:`Light` kind each becomes.
@@ -38,23 +38,6 @@ def read_gltf(reading: Reading, *, scene_lights: bool) -> None:
         _primitive_colours(reading, doc, slot, part)
 
 
-def _nodes(gl: dict):
-    """(index, world (4, 4) column-vector matrix) of every node of the default scene,
-    depth-first in file order."""
-    nodes, scenes = gl.get("nodes", []), gl.get("scenes", [])
-    roots = scenes[gl.get("scene", 0)].get("nodes", []) if scenes else []
-    seen: set[int] = set()
-    stack = [(index, np.eye(4)) for index in reversed(roots)]
-    while stack:
-        index, parent = stack.pop()
-        if index in seen or not 0 <= index < len(nodes):
-            continue
-        seen.add(index)
-        world = parent @ _local_matrix(nodes[index])
-        yield index, world
-        stack.extend((child, world) for child in reversed(nodes[index].get("children", [])))
-
-
 def _number(reading: Reading, where: str, what: str, value) -> float:
     if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
         raise InputError(reading.path, f"{where}: {what} must be a finite number, got {value!r}")
@@ -64,7 +47,7 @@ def _number(reading: Reading, where: str, what: str, value) -> float:
 def _lights(reading: Reading, doc: Document) -> None:
     gl = doc.json
     table = gl.get("extensions", {}).get("KHR_lights_punctual", {}).get("lights", [])
-    for index, world in _nodes(gl):
+    for index, world in scene_nodes(gl):
         node = gl["nodes"][index]
         ref = node.get("extensions", {}).get("KHR_lights_punctual")
         if ref is None:

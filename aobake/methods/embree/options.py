@@ -23,6 +23,11 @@ def _light_samples():
     return option(64, "Shadow rays per area light and vertex (lit scenes).", kind=int, low=1, high=MAX_RAYS, flag="light-samples")
 
 
+def _bias():
+    return option(None, "Ray origin offset along the normal (mesh units).", kind=float, low=0,
+                  none="from float precision and edge length")  # fmt: skip
+
+
 def _bounces():
     return option(1, "Indirect bounces of light (lit scenes; 0 = direct light only).", kind=int, low=0, high=64)
 
@@ -67,13 +72,7 @@ class EmbreeOptions:
     n_rays: int = option(256, "Rays per vertex (the most, with --tolerance).", kind=int, low=1, high=MAX_RAYS, flag="rays")
     measure: str = measure_option()
     max_distance: float | None = max_distance_option()
-    bias: float | None = option(
-        None,
-        "Ray origin offset along the normal (mesh units).",
-        kind=float,
-        low=0,
-        none="from float precision and edge length",
-    )
+    bias: float | None = _bias()
     tolerance: float | None = option(
         None,
         "Adaptive: stop a vertex once its 95% interval half-width is below this (light: this fraction of its irradiance).",
@@ -143,13 +142,7 @@ class LightOptions:
         none="off",
     )
     max_distance: float | None = max_distance_option()
-    bias: float | None = option(
-        None,
-        "Ray origin offset along the normal (mesh units).",
-        kind=float,
-        low=0,
-        none="from float precision and edge length",
-    )
+    bias: float | None = _bias()
     seed: int = seed_option()
     threads: int | None = threads_option()
 
