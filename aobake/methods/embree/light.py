@@ -21,6 +21,7 @@ from ...constants import (
     CHUNK_RAYS,
     EPS32,
     INFINITE_DISTANCE,
+    PATH_BLOCK,
     RAY_OFFSET_ULPS,
     Z95,
 )
@@ -302,26 +303,61 @@ def irradiance(
         return m
 
     def paths(vidx, p0, p1):
+        # Whole vertices in blocks of ~PATH_BLOCK paths through buffers made once: they
+        # stay in cache and are not faulted in anew per chunk (each path and each
+        # vertex's sums see the same values in the same order as in one block).
         per = p1 - p0
-        count = vidx.size * per
-        vertex_of = np.repeat(vidx, per)
-        index_of = np.tile(np.arange(p0, p1, dtype=np.int64), vidx.size)
-        path_org = np.repeat(origins[vidx].astype(np.float64) * scale, per, axis=0)
-        path_normal = np.repeat(normals[vidx], per, axis=0)
-        alive = np.repeat(np.any(normals[vidx] != 0, axis=1), per)
-        throughput = np.ones((count, 3))
-        value_d = np.zeros((count, 3))
-        value_i = np.zeros((count, 3))
-        live = np.empty(count, dtype=np.int64)
-        org = np.empty((count, 3), dtype=np.float32)
-        dirs = np.empty((count, 3), dtype=np.float32)
-        k = count * n_comp
+        block = max(1, PATH_BLOCK // per)
+        size = min(block, vidx.size) * per
+        index_of = np.tile(np.arange(p0, p1, dtype=np.int64), min(block, vidx.size))
+        path_org = np.empty((size, 3))
+        path_normal = np.empty((size, 3))
+        alive = np.empty(size, dtype=bool)
+        throughput = np.empty((size, 3))
+        value_d = np.empty((size, 3))
+        value_i = np.empty((size, 3))
+        live = np.empty(size, dtype=np.int64)
+        org = np.empty((size, 3), dtype=np.float32)
+        dirs = np.empty((size, 3), dtype=np.float32)
+        k = size * n_comp
         s_org = np.empty((k, 3), dtype=np.float32)
         s_dir = np.empty((k, 3), dtype=np.float32)
         s_far = np.empty(k, dtype=np.float32)
         s_w = np.empty((k, 3))
         s_row = np.empty(k, dtype=np.int64)
+        sd = np.zeros((vidx.size, 3))
+        si = np.zeros((vidx.size, 3))
+        sq = np.zeros((vidx.size, 3))
         rays = 0
+        for b in range(0, vidx.size, block):
+            sub = vidx[b : b + block]
+            count = sub.size * per
+            vertex_of = np.repeat(sub, per)
+            path_org[:count] = np.repeat(origins[sub].astype(np.float64) * scale, per, axis=0)
+            path_normal[:count] = np.repeat(normals[sub], per, axis=0)
+            alive[:count] = np.repeat(np.any(normals[sub] != 0, axis=1), per)
+            throughput[:count] = 1.0
+            value_d[:count] = 0.0
+            value_i[:count] = 0.0
+            rays += _trace_paths(
+                count, vertex_of, index_of, path_org, path_normal, alive, throughput, value_d, value_i,
+                live, org, dirs, s_org, s_dir, s_far, s_w, s_row,
+            )  # fmt: skip
+            _kl.path_sums(value_d, value_i, per, sd[b : b + sub.size], si[b : b + sub.size], sq[b : b + sub.size])
+        path_d[vidx] += sd
+        path_i[vidx] += si
+        path_sq[vidx] += sq
+        with lock:
+            counts["bounce"] += rays
+        return rays
+
+    def _trace_paths(
+        count, vertex_of, index_of, path_org, path_normal, alive, throughput, value_d, value_i,
+        live, org, dirs, s_org, s_dir, s_far, s_w, s_row,
+    ):  # fmt: skip
+        """Paths 0..count-1 of the buffers from their vertices to their end; the rays cast."""
+        rays = 0
+        alive = alive[:count]
         for depth in range(bounces + 1):
             m = _kl.bounce_directions(path_org, path_normal, alive, keys, vertex_of, index_of, depth, inv_scale, live, org, dirs)
             if m == 0:
@@ -344,15 +380,6 @@ def irradiance(
                 ids = tracer.occluded_within(s_org[:m], s_dir[:m], s_far[:m])
                 _kl.add_path_samples(ids, s_w, s_row, m, value_i)
             rays += m
-        sd = np.zeros((vidx.size, 3))
-        si = np.zeros((vidx.size, 3))
-        sq = np.zeros((vidx.size, 3))
-        _kl.path_sums(value_d, value_i, per, sd, si, sq)
-        path_d[vidx] += sd
-        path_i[vidx] += si
-        path_sq[vidx] += sq
-        with lock:
-            counts["bounce"] += rays
         return rays
 
     taken = np.zeros(n, dtype=np.int64)
