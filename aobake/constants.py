@@ -60,9 +60,9 @@ Z95 = 1.959963984540054
 # to amortise the call and small enough to keep per-chunk memory flat on big meshes.
 CHUNK_RAYS = 1 << 20
 
-# Paths traced together (the light transport's bounces): their state, ~0.3 kB a path,
-# stays in a core's cache.
-PATH_BLOCK = 4096
+# Rays (or paths) the light transport makes and traces together through buffers made
+# once per chunk: their records (~0.1 kB a ray, ~0.3 kB a path) stay in a core's cache.
+BLOCK_RAYS = 4096
 
 # Normals: a vertex whose summed face normals are shorter than this (relative to the
 # mean face area scale) has no defined normal; it gets a fallback and a warning.

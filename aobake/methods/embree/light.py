@@ -18,10 +18,10 @@ import numpy as np
 
 from ...constants import (
     ADAPTIVE_FIRST_ROUND,
+    BLOCK_RAYS,
     CHUNK_RAYS,
     EPS32,
     INFINITE_DISTANCE,
-    PATH_BLOCK,
     RAY_OFFSET_ULPS,
     Z95,
 )
@@ -277,9 +277,12 @@ def irradiance(
     inv_scale = 1.0 / scale
 
     def direct(vidx, j_lo, j_hi):
-        k = int(vidx.size * np.maximum(j_hi - j_lo, 0).sum())
-        if k == 0:
+        # Whole vertices in blocks of ~BLOCK_RAYS rays through buffers made once (as paths).
+        per = int(np.maximum(j_hi - j_lo, 0).sum())
+        if per == 0 or vidx.size == 0:
             return 0
+        block = max(1, BLOCK_RAYS // per)
+        k = min(block, vidx.size) * per
         org = np.empty((k, 3), dtype=np.float32)
         dirs = np.empty((k, 3), dtype=np.float32)
         far = np.empty(k, dtype=np.float32)
@@ -288,26 +291,30 @@ def irradiance(
         comp = np.empty(k, dtype=np.int64)
         local = np.zeros((vidx.size, n_comp, 3))
         local_sq = np.zeros((vidx.size, n_comp, 3))
-        m = _kl.direct_samples(
-            vidx, points, origins, normals, keys, kinds, params, j_lo, j_hi, reach,
-            points, faces, tris, cdf, emission, lum_total, face_offsets, scale, far_cap, local, local_sq,
-            org, dirs, far, w, row, comp,
-        )  # fmt: skip
-        if m:
-            ids = tracer.occluded_within(org[:m], dirs[:m], far[:m])
-            _kl.add_samples(ids, w, row, comp, m, local, local_sq)
+        cast = np.zeros(n_comp, dtype=np.int64)
+        for b in range(0, vidx.size, block):
+            sub, here, here_sq = vidx[b : b + block], local[b : b + block], local_sq[b : b + block]
+            m = _kl.direct_samples(
+                sub, points, origins, normals, keys, kinds, params, j_lo, j_hi, reach,
+                points, faces, tris, cdf, emission, lum_total, face_offsets, scale, far_cap, here, here_sq,
+                org, dirs, far, w, row, comp,
+            )  # fmt: skip
+            if m:
+                ids = tracer.occluded_within(org[:m], dirs[:m], far[:m])
+                _kl.add_samples(ids, w, row, comp, m, here, here_sq)
+                cast += np.bincount(comp[:m], minlength=n_comp)
         sums[vidx] += local
         squares[vidx] += local_sq
         with lock:
-            shadow_rays[:] += np.bincount(comp[:m], minlength=n_comp)
-        return m
+            shadow_rays[:] += cast
+        return int(cast.sum())
 
     def paths(vidx, p0, p1):
-        # Whole vertices in blocks of ~PATH_BLOCK paths through buffers made once: they
+        # Whole vertices in blocks of ~BLOCK_RAYS paths through buffers made once: they
         # stay in cache and are not faulted in anew per chunk (each path and each
         # vertex's sums see the same values in the same order as in one block).
         per = p1 - p0
-        block = max(1, PATH_BLOCK // per)
+        block = max(1, BLOCK_RAYS // per)
         size = min(block, vidx.size) * per
         index_of = np.tile(np.arange(p0, p1, dtype=np.int64), min(block, vidx.size))
         path_org = np.empty((size, 3))
