@@ -62,7 +62,7 @@ CHUNK_RAYS = 1 << 20
 
 # Rays (or paths) the light transport makes and traces together through buffers made
 # once per chunk: their records (~0.1 kB a ray, ~0.3 kB a path) stay in a core's cache.
-BLOCK_RAYS = 4096
+BLOCK_RAYS = 8192
 
 # Normals: a vertex whose summed face normals are shorter than this (relative to the
 # mean face area scale) has no defined normal; it gets a fallback and a warning.
