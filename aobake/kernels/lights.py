@@ -349,6 +349,25 @@ def add_samples(ids, w, row, comp, m, sums, squares):
             squares[a, c, k] += w[r, k] * w[r, k]
 
 
+@njit(cache=True, nogil=True)
+def start_paths(vertices, per, origins, normals, scale, vertex_of, path_org, path_normal, alive, throughput, value_d, value_i):
+    """Paths 0..len(vertices) * per - 1, ``per`` a vertex in order: at the vertex's offset
+    origin (float64, mesh units) and normal, alive where it has one, throughput 1."""
+    for a in range(vertices.shape[0]):
+        v = vertices[a]
+        has_normal = normals[v, 0] != 0.0 or normals[v, 1] != 0.0 or normals[v, 2] != 0.0
+        for s in range(per):
+            p = a * per + s
+            vertex_of[p] = v
+            alive[p] = has_normal
+            for k in range(3):
+                path_org[p, k] = np.float64(origins[v, k]) * scale
+                path_normal[p, k] = normals[v, k]
+                throughput[p, k] = 1.0
+                value_d[p, k] = 0.0
+                value_i[p, k] = 0.0
+
+
 @njit(cache=True, fastmath=FASTMATH, nogil=True)
 def bounce_directions(path_org, path_normal, alive, keys, vertex_of, index_of, depth, inv_scale, out_live, out_org, out_dir):
     """Rays of the live paths, compacted: ``out_live[r]`` the path, its origin (float32,

@@ -317,6 +317,7 @@ def irradiance(
         block = max(1, BLOCK_RAYS // per)
         size = min(block, vidx.size) * per
         index_of = np.tile(np.arange(p0, p1, dtype=np.int64), min(block, vidx.size))
+        vertex_of = np.empty(size, dtype=np.int64)
         path_org = np.empty((size, 3))
         path_normal = np.empty((size, 3))
         alive = np.empty(size, dtype=bool)
@@ -339,13 +340,7 @@ def irradiance(
         for b in range(0, vidx.size, block):
             sub = vidx[b : b + block]
             count = sub.size * per
-            vertex_of = np.repeat(sub, per)
-            path_org[:count] = np.repeat(origins[sub].astype(np.float64) * scale, per, axis=0)
-            path_normal[:count] = np.repeat(normals[sub], per, axis=0)
-            alive[:count] = np.repeat(np.any(normals[sub] != 0, axis=1), per)
-            throughput[:count] = 1.0
-            value_d[:count] = 0.0
-            value_i[:count] = 0.0
+            _kl.start_paths(sub, per, origins, normals, scale, vertex_of, path_org, path_normal, alive, throughput, value_d, value_i)
             rays += _trace_paths(
                 count, vertex_of, index_of, path_org, path_normal, alive, throughput, value_d, value_i,
                 live, org, dirs, s_org, s_dir, s_far, s_w, s_row,
