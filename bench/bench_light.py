@@ -68,6 +68,32 @@ def throughput(surface, shading, repeats, threads):
     return best
 
 
+def trace_only(surface, repeats):
+    """Nanoseconds a ray of Embree's any-hit (AO) and closest-hit (path) queries alone, one
+    thread, on the same rays: 1,024 cosine-weighted rays a vertex from the AO's origins."""
+    from aobake.contacts import contact_origins, ray_offsets
+    from aobake.kernels import rays as _k
+    from aobake.kernels import topology as _topo
+    from aobake.tracing import Tracer
+
+    tracer = Tracer(surface.positions, surface.faces)
+    edges = _topo.longest_edges(surface.positions, surface.faces)
+    origins, _ = contact_origins(surface, tracer, ray_offsets(surface, tracer.magnitude, None, edges), edges)
+    keys = _k.vertex_keys(np.uint64(0), surface.n_vertices)
+    vertices = np.arange(surface.n_vertices, dtype=np.int64)
+    org = np.empty((vertices.size * 1024, 3), dtype=np.float32)
+    dirs = np.empty_like(org)
+    _k.generate_rays(origins, np.ascontiguousarray(surface.normals), keys, vertices, 0, 1024, 0, org, dirs)
+    best = {"any": np.inf, "closest": np.inf}
+    for _ in range(repeats):
+        for name, query in (("any", tracer.occluded), ("closest", tracer.first_hits)):
+            t = time.perf_counter()
+            for s in range(0, org.shape[0], 8192):
+                query(org[s : s + 8192], dirs[s : s + 8192])
+            best[name] = min(best[name], (time.perf_counter() - t) / org.shape[0] * 1e9)
+    return best
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=3)
@@ -85,6 +111,9 @@ def main():
     rates = throughput(surface, shading, args.repeats, args.threads)
     print(f"rays/s: ao {rates['ao']:.3g}, shadow {rates['shadow']:.3g} ({rates['shadow'] / rates['ao']:.2f}x), "
           f"bounce+nee {rates['bounce']:.3g} ({rates['bounce'] / rates['ao']:.2f}x)  [goal >= 0.9x]")
+    ns = trace_only(surface, args.repeats)
+    print(f"trace only, 1 thread, same rays: any-hit {ns['any']:.1f} ns/ray, closest-hit {ns['closest']:.1f} ns/ray "
+          f"({ns['any'] / ns['closest']:.2f}x the any-hit rate)")
     for name, (surf, sh, scored) in {
         "RectLight": (surface, shading, surface.n_vertices),
         "emissive quad": emissive_variant(surface, shading),

@@ -349,6 +349,25 @@ def add_samples(ids, w, row, comp, m, sums, squares):
             squares[a, c, k] += w[r, k] * w[r, k]
 
 
+@njit(cache=True, nogil=True)
+def start_paths(vertices, per, origins, normals, scale, vertex_of, path_org, path_normal, alive, throughput, value_d, value_i):
+    """Paths 0..len(vertices) * per - 1, ``per`` a vertex in order: at the vertex's offset
+    origin (float64, mesh units) and normal, alive where it has one, throughput 1."""
+    for a in range(vertices.shape[0]):
+        v = vertices[a]
+        has_normal = normals[v, 0] != 0.0 or normals[v, 1] != 0.0 or normals[v, 2] != 0.0
+        for s in range(per):
+            p = a * per + s
+            vertex_of[p] = v
+            alive[p] = has_normal
+            for k in range(3):
+                path_org[p, k] = np.float64(origins[v, k]) * scale
+                path_normal[p, k] = normals[v, k]
+                throughput[p, k] = 1.0
+                value_d[p, k] = 0.0
+                value_i[p, k] = 0.0
+
+
 @njit(cache=True, fastmath=FASTMATH, nogil=True)
 def bounce_directions(path_org, path_normal, alive, keys, vertex_of, index_of, depth, inv_scale, out_live, out_org, out_dir):
     """Rays of the live paths, compacted: ``out_live[r]`` the path, its origin (float32,
@@ -359,12 +378,16 @@ def bounce_directions(path_org, path_normal, alive, keys, vertex_of, index_of, d
     multiplies them (measured: a bias of ~20% on the box's indirect light). Returns
     the number of rays."""
     m = 0
+    last = -1  # a vertex's paths are consecutive: its key and seeds are made once
+    key = s0 = s1 = np.uint64(0)
     for p in range(alive.shape[0]):
         if not alive[p]:
             continue
-        key = rng.hash2(keys[vertex_of[p]], np.uint64(1000003 + depth))
-        if depth == 0:
+        if vertex_of[p] != last:
+            last = vertex_of[p]
+            key = rng.hash2(keys[last], np.uint64(1000003 + depth))
             s0, s1 = rng.scramble_seeds(key)
+        if depth == 0:
             u0, u1 = rng.scrambled_sobol2_seeded(index_of[p], s0, s1)
         else:
             u0, u1 = rng.random2(index_of[p], key)
@@ -442,12 +465,18 @@ def hit_samples(
     number of rays."""
     n_lights = kinds.shape[0]
     m = 0
+    last = -1  # a vertex's paths are consecutive: its per-component keys are made once
+    comp_keys = np.zeros(n_lights + 1, dtype=np.uint64)
     for p in range(alive.shape[0]):
         if not alive[p]:
             continue
         ox, oy, oz = path_org[p, 0], path_org[p, 1], path_org[p, 2]
         nx, ny, nz = path_normal[p, 0], path_normal[p, 1], path_normal[p, 2]
-        key = rng.hash2(keys[vertex_of[p]], np.uint64(2000003 + depth))
+        if vertex_of[p] != last:
+            last = vertex_of[p]
+            key = rng.hash2(keys[last], np.uint64(2000003 + depth))
+            for c in range(n_lights + 1):
+                comp_keys[c] = rng.hash2(key, np.uint64(c))
         for c in range(n_lights + 1):
             if c < n_lights:
                 kind = kinds[c]
@@ -462,7 +491,7 @@ def hit_samples(
                 continue
             else:
                 shadow = True
-            u0, u1 = rng.random2(index_of[p], rng.hash2(key, np.uint64(c)))
+            u0, u1 = rng.random2(index_of[p], comp_keys[c])
             if c < n_lights:
                 wr, wg, wb, dx, dy, dz, dist = sample_light(kinds[c], params[c], ox, oy, oz, nx, ny, nz, u0, u1)
             else:

@@ -18,6 +18,7 @@ import numpy as np
 
 from ...constants import (
     ADAPTIVE_FIRST_ROUND,
+    BLOCK_RAYS,
     CHUNK_RAYS,
     EPS32,
     INFINITE_DISTANCE,
@@ -276,9 +277,12 @@ def irradiance(
     inv_scale = 1.0 / scale
 
     def direct(vidx, j_lo, j_hi):
-        k = int(vidx.size * np.maximum(j_hi - j_lo, 0).sum())
-        if k == 0:
+        # Whole vertices in blocks of ~BLOCK_RAYS rays through buffers made once (as paths).
+        per = int(np.maximum(j_hi - j_lo, 0).sum())
+        if per == 0 or vidx.size == 0:
             return 0
+        block = max(1, BLOCK_RAYS // per)
+        k = min(block, vidx.size) * per
         org = np.empty((k, 3), dtype=np.float32)
         dirs = np.empty((k, 3), dtype=np.float32)
         far = np.empty(k, dtype=np.float32)
@@ -287,41 +291,75 @@ def irradiance(
         comp = np.empty(k, dtype=np.int64)
         local = np.zeros((vidx.size, n_comp, 3))
         local_sq = np.zeros((vidx.size, n_comp, 3))
-        m = _kl.direct_samples(
-            vidx, points, origins, normals, keys, kinds, params, j_lo, j_hi, reach,
-            points, faces, tris, cdf, emission, lum_total, face_offsets, scale, far_cap, local, local_sq,
-            org, dirs, far, w, row, comp,
-        )  # fmt: skip
-        if m:
-            ids = tracer.occluded_within(org[:m], dirs[:m], far[:m])
-            _kl.add_samples(ids, w, row, comp, m, local, local_sq)
+        cast = np.zeros(n_comp, dtype=np.int64)
+        for b in range(0, vidx.size, block):
+            sub, here, here_sq = vidx[b : b + block], local[b : b + block], local_sq[b : b + block]
+            m = _kl.direct_samples(
+                sub, points, origins, normals, keys, kinds, params, j_lo, j_hi, reach,
+                points, faces, tris, cdf, emission, lum_total, face_offsets, scale, far_cap, here, here_sq,
+                org, dirs, far, w, row, comp,
+            )  # fmt: skip
+            if m:
+                ids = tracer.occluded_within(org[:m], dirs[:m], far[:m])
+                _kl.add_samples(ids, w, row, comp, m, here, here_sq)
+                cast += np.bincount(comp[:m], minlength=n_comp)
         sums[vidx] += local
         squares[vidx] += local_sq
         with lock:
-            shadow_rays[:] += np.bincount(comp[:m], minlength=n_comp)
-        return m
+            shadow_rays[:] += cast
+        return int(cast.sum())
 
     def paths(vidx, p0, p1):
+        # Whole vertices in blocks of ~BLOCK_RAYS paths through buffers made once: they
+        # stay in cache and are not faulted in anew per chunk (each path and each
+        # vertex's sums see the same values in the same order as in one block).
         per = p1 - p0
-        count = vidx.size * per
-        vertex_of = np.repeat(vidx, per)
-        index_of = np.tile(np.arange(p0, p1, dtype=np.int64), vidx.size)
-        path_org = np.repeat(origins[vidx].astype(np.float64) * scale, per, axis=0)
-        path_normal = np.repeat(normals[vidx], per, axis=0)
-        alive = np.repeat(np.any(normals[vidx] != 0, axis=1), per)
-        throughput = np.ones((count, 3))
-        value_d = np.zeros((count, 3))
-        value_i = np.zeros((count, 3))
-        live = np.empty(count, dtype=np.int64)
-        org = np.empty((count, 3), dtype=np.float32)
-        dirs = np.empty((count, 3), dtype=np.float32)
-        k = count * n_comp
+        block = max(1, BLOCK_RAYS // per)
+        size = min(block, vidx.size) * per
+        index_of = np.tile(np.arange(p0, p1, dtype=np.int64), min(block, vidx.size))
+        vertex_of = np.empty(size, dtype=np.int64)
+        path_org = np.empty((size, 3))
+        path_normal = np.empty((size, 3))
+        alive = np.empty(size, dtype=bool)
+        throughput = np.empty((size, 3))
+        value_d = np.empty((size, 3))
+        value_i = np.empty((size, 3))
+        live = np.empty(size, dtype=np.int64)
+        org = np.empty((size, 3), dtype=np.float32)
+        dirs = np.empty((size, 3), dtype=np.float32)
+        k = size * n_comp
         s_org = np.empty((k, 3), dtype=np.float32)
         s_dir = np.empty((k, 3), dtype=np.float32)
         s_far = np.empty(k, dtype=np.float32)
         s_w = np.empty((k, 3))
         s_row = np.empty(k, dtype=np.int64)
+        sd = np.zeros((vidx.size, 3))
+        si = np.zeros((vidx.size, 3))
+        sq = np.zeros((vidx.size, 3))
         rays = 0
+        for b in range(0, vidx.size, block):
+            sub = vidx[b : b + block]
+            count = sub.size * per
+            _kl.start_paths(sub, per, origins, normals, scale, vertex_of, path_org, path_normal, alive, throughput, value_d, value_i)
+            rays += _trace_paths(
+                count, vertex_of, index_of, path_org, path_normal, alive, throughput, value_d, value_i,
+                live, org, dirs, s_org, s_dir, s_far, s_w, s_row,
+            )  # fmt: skip
+            _kl.path_sums(value_d, value_i, per, sd[b : b + sub.size], si[b : b + sub.size], sq[b : b + sub.size])
+        path_d[vidx] += sd
+        path_i[vidx] += si
+        path_sq[vidx] += sq
+        with lock:
+            counts["bounce"] += rays
+        return rays
+
+    def _trace_paths(
+        count, vertex_of, index_of, path_org, path_normal, alive, throughput, value_d, value_i,
+        live, org, dirs, s_org, s_dir, s_far, s_w, s_row,
+    ):  # fmt: skip
+        """Paths 0..count-1 of the buffers from their vertices to their end; the rays cast."""
+        rays = 0
+        alive = alive[:count]
         for depth in range(bounces + 1):
             m = _kl.bounce_directions(path_org, path_normal, alive, keys, vertex_of, index_of, depth, inv_scale, live, org, dirs)
             if m == 0:
@@ -344,15 +382,6 @@ def irradiance(
                 ids = tracer.occluded_within(s_org[:m], s_dir[:m], s_far[:m])
                 _kl.add_path_samples(ids, s_w, s_row, m, value_i)
             rays += m
-        sd = np.zeros((vidx.size, 3))
-        si = np.zeros((vidx.size, 3))
-        sq = np.zeros((vidx.size, 3))
-        _kl.path_sums(value_d, value_i, per, sd, si, sq)
-        path_d[vidx] += sd
-        path_i[vidx] += si
-        path_sq[vidx] += sq
-        with lock:
-            counts["bounce"] += rays
         return rays
 
     taken = np.zeros(n, dtype=np.int64)
