@@ -7,8 +7,8 @@ from __future__ import annotations
 
 import numpy as np
 
-# numba fastmath flags, for the tree pass's list sums only (kernels/listsums.py: their
-# loops vectorise only if LLVM may reassociate the sums). Every other kernel rounds as
+# numba fastmath flags, for the disk method's tree pass only (kernels/treepass.py and its
+# list sums: their loops vectorise only if LLVM may reassociate the sums). Every other kernel rounds as
 # written: numba links a copy of each callee (and of a parallel kernel's body) into its
 # caller and optimises it again there, fastmath lets LLVM round that copy differently,
 # and which copy runs depends on what was compiled or loaded from the cache first

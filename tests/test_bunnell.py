@@ -127,6 +127,7 @@ def test_each_kernel_compiled_once():
     for kernel in (
         K.brute_force_pass,
         KT.hierarchy_pass_apart,
+        KT.hierarchy_pass_inlined,
         KTW.bucket_bounds,
         KH.build_tree,
         KH.node_geometry,

@@ -16,7 +16,7 @@ import numba
 import numpy as np
 from numba import njit, prange
 
-from aobake.constants import MEASURE_COSINE
+from aobake.constants import FASTMATH, MEASURE_COSINE
 
 from .bunnell import (
     SECTORS,
@@ -29,9 +29,12 @@ from .bunnell import (
     settle_fill,
 )
 from .listsums import (
+    binned_sums,
     binned_sums_apart,
     direction_sums,
+    far_sums,
     far_sums_apart,
+    near_disk_sums,
     near_disk_sums_apart,
     site,
 )
@@ -103,16 +106,27 @@ def hierarchy_pass(tree, emitters, receivers, near_field, buckets, span, options
         As in ``bunnell.brute_force_pass``; a receiver with a slot bins by direction even
         where its sums could not overflow a bin.
     """
-    # The list sums are compiled apart (docs/first-run.md): inlined into this parallel
-    # loop they made it compile for ~80 s of CPU instead of ~33 s.
-    hierarchy_pass_apart(tree, emitters, receivers, near_field, buckets, span, options, out,
-                         first, fill)
+    # Compile time (docs/first-run.md): with every list sum inlined the kernel takes ~80 s
+    # of CPU to compile, with the sums compiled apart ~33 s. Apart gives the same bits
+    # only in a first pass (no levels) with the cosine measure, the default bake; other
+    # passes and the uniform measure round differently apart, so they keep them inlined.
+    first_cosine = options.measure == MEASURE_COSINE and not options.leveled
+    kernel = hierarchy_pass_apart if first_cosine else hierarchy_pass_inlined
+    kernel(tree, emitters, receivers, near_field, buckets, span, options, out, first, fill)
 
 
-@njit(cache=True, error_model="numpy", parallel=True)
+@njit(cache=True, fastmath=FASTMATH, error_model="numpy", parallel=True)
+def hierarchy_pass_inlined(tree, emitters, receivers, near_field, buckets, span, options, out,
+                           first, fill):
+    """:func:`hierarchy_pass` with the list sums inlined (any pass, any measure)."""
+    _tree_pass(tree, emitters, receivers, near_field, buckets, span, options, out, first, fill,
+               far_sums, near_disk_sums, binned_sums)
+
+
+@njit(cache=True, fastmath=FASTMATH, error_model="numpy", parallel=True)
 def hierarchy_pass_apart(tree, emitters, receivers, near_field, buckets, span, options, out,
                          first, fill):
-    """:func:`hierarchy_pass` with the list sums compiled apart (every pass and measure)."""
+    """:func:`hierarchy_pass` with the list sums compiled apart (a first pass, cosine)."""
     _tree_pass(tree, emitters, receivers, near_field, buckets, span, options, out, first, fill,
                far_sums_apart, near_disk_sums_apart, binned_sums_apart)
 
@@ -121,8 +135,8 @@ def hierarchy_pass_apart(tree, emitters, receivers, near_field, buckets, span, o
 def _tree_pass(tree, emitters, receivers, near_field, buckets, span, options, out, first, fill,
                far_fn, near_fn, binned_fn):
     """The body of :func:`hierarchy_pass`; the list sums ``far_fn``, ``near_fn``,
-    ``binned_fn`` (:func:`~.listsums.far_sums_apart`, ``near_disk_sums_apart``,
-    ``binned_sums_apart``) are compile-time arguments."""
+    ``binned_fn`` (:func:`~.listsums.far_sums`, ``near_disk_sums``, ``binned_sums`` or
+    their ``*_apart`` twins) are compile-time arguments."""
     positions, cell_weights, reach = near_field.positions, near_field.weights, near_field.reach
     corner_start, corners = near_field.corner_start, near_field.corners
     cache, cache_mode = near_field.cache, near_field.cache_mode
