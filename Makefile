@@ -17,7 +17,7 @@ STEMS    := $(basename $(notdir $(INPUTS)))
 OUT_PLY  := $(STEMS:%=$(OUT)/%.ply)
 OUT_USD  := $(STEMS:%=$(OUT)/%.usda)
 
-.PHONY: help venv bake batch test bench bench-deps bench-embree bench-bunnell bench-field bench-batch bench-process report lint coverage clean
+.PHONY: help venv bake batch test bench bench-deps bench-embree bench-bunnell bench-field bench-batch bench-process bench-light report lint coverage clean
 
 help: ## Show this help
 	@awk 'BEGIN {FS = ":.*?## "} /^[a-zA-Z_-]+:.*?## / {printf "  %-14s %s\n", $$1, $$2}' $(MAKEFILE_LIST)
@@ -58,7 +58,7 @@ out/sphere_on_ground.ply out/sphere_on_ground.usda out/box_stack.ply out/box_sta
 test: $(STAMP) ## Run the test suite
 	$(PY) -m pytest -q
 
-bench: bench-embree bench-bunnell bench-field bench-batch bench-process ## All benchmarks (ratios measured in one run; ~50 min on 2 cores)
+bench: bench-embree bench-bunnell bench-field bench-batch bench-process bench-light ## All benchmarks (ratios measured in one run; ~50 min on 2 cores)
 
 bench-deps: $(STAMP)
 	$(PY) -m pip install --quiet -e '.[bench]' || echo "libigl not installable: peer rows skipped"
@@ -79,6 +79,9 @@ bench-batch: $(STAMP) ## aobake batch: 200 meshes against make -j2 batch, up-to-
 
 bench-process: $(STAMP) ## Whole process (wall, peak RSS, bytes/vertex, stage shares) on 721k and ~3.7M vertices, vs bare embreex
 	$(PY) bench/bench_process.py --big
+
+bench-light: $(STAMP) ## Light transport: shadow/bounce ray rate vs AO rays, RMSE on the box (RectLight, emissive quad), error coverage
+	$(PY) bench/bench_light.py
 
 report: $(STAMP) ## Sweep accuracy vs time on the bundled meshes into report/ (tables + pareto.png)
 # the two procedural scenes carry their own floor: no field rows (a field is for one rigid object)

@@ -78,6 +78,12 @@ class Settings:
     overlay: bool | None = None
     receivers: tuple = ()
     occluders: tuple = ()
+    effects: str | tuple = "auto"
+    lights: tuple = ()
+    scene_lights: bool = True
+    split_irradiance: bool = False
+    exposure: float = 0.0
+    ground: str | float | None = None
 
     def bake_kwargs(self, threads: int | None) -> dict:
         options = dict(self.options)
@@ -95,6 +101,12 @@ class Settings:
             overlay=self.overlay,
             receivers=self.receivers,
             occluders=self.occluders,
+            effects=self.effects,
+            lights=self.lights,
+            scene_lights=self.scene_lights,
+            split_irradiance=self.split_irradiance,
+            exposure=self.exposure,
+            ground=self.ground,
             **options,
         )
 
@@ -210,6 +222,17 @@ def file_hash(path: str | Path) -> str:
     return digest.hexdigest()
 
 
+def _light_key(settings: Settings) -> dict:
+    """The light settings that differ from their defaults (an AO batch's key is unchanged)."""
+    defaults = Settings()
+    names = ("effects", "lights", "scene_lights", "split_irradiance", "exposure")
+    return {
+        name: list(value) if isinstance(value, tuple) else value
+        for name in names
+        if (value := getattr(settings, name)) != getattr(defaults, name)
+    }
+
+
 def settings_key(settings: Settings, formats: Sequence[str]) -> tuple[dict, str]:
     """What decides the outputs' bytes besides the input (every option resolved to its
     value, field files by content, the formats), and its sha256."""
@@ -228,12 +251,15 @@ def settings_key(settings: Settings, formats: Sequence[str]) -> tuple[dict, str]
         "time": settings.time,
         "overlay": settings.overlay,
         **{key: list(getattr(settings, key)) for key in ("receivers", "occluders") if getattr(settings, key)},
+        **_light_key(settings),
         "fields": [
             {"file": Path(f).name, "sha256": file_hash(f), "placement": None if p is None else list(p)}
             for f, p in (_field_parts(item) for item in settings.fields)
         ],
         "formats": list(formats),
     }
+    if settings.ground is not None:  # only when given: earlier manifests keep their keys
+        described["ground"] = settings.ground
     text = json.dumps(described, sort_keys=True, default=str)
     return described, hashlib.sha256(text.encode()).hexdigest()
 
@@ -400,8 +426,8 @@ def part_task(job: Job, settings: Settings, part: tuple, slots: dict):
     from .pipeline import bake_part
 
     kw = settings.bake_kwargs(_worker_threads(slots))
-    for name in ("color", "up_axis", "meters_per_unit", "fields", "channel", "weld", "overlay"):
-        kw.pop(name)
+    for name in ("color", "meters_per_unit", "fields", "channel", "weld", "overlay", "split_irradiance", "exposure"):
+        kw.pop(name)  # up_axis and ground stay: the plane is resolved along the up axis
     try:
         surface = load_mesh(job.source, time=kw.pop("time"))
         return bake_part(surface, parts=part, **kw), surface if part[0] == 0 else None
@@ -691,6 +717,8 @@ def bake_arguments(settings: Settings) -> list[str]:
             args += [f"--{key}", pattern]
     if settings.up_axis:
         args += ["--up", settings.up_axis]
+    if settings.ground is not None:
+        args += ["--ground", settings.ground if settings.ground == "auto" else repr(float(settings.ground))]
     if settings.meters_per_unit:
         args += ["--meters-per-unit", repr(settings.meters_per_unit)]
     for item in settings.fields:

@@ -39,7 +39,9 @@ class AobakeGroup(click.Group):
             try:
                 result = super().invoke(ctx)
             except AobakeError as exc:
-                raise click.ClickException(str(exc)) from None
+                error = click.ClickException(str(exc))
+                error.exit_code = getattr(exc, "exit_code", 1)
+                raise error from None
             except progress.Terminated:
                 ctx.exit(128 + 15)
             except Exception:
@@ -110,6 +112,20 @@ class FieldSpec(click.ParamType):
                     self.fail(f"{value!r}: the placement must be finite numbers", param, ctx)
                 return Path(path), numbers
         return Path(str(value)), None
+
+
+class GroundSpec(click.ParamType):
+    """``auto`` or a finite height in mesh units (``--ground``)."""
+
+    name = "auto|HEIGHT"
+
+    def convert(self, value, param, ctx):
+        from .ground import parse_ground
+
+        try:
+            return parse_ground(value)
+        except ValueError as exc:
+            self.fail(str(exc), param, ctx)
 
 
 def compile_notice(quiet: bool):
@@ -278,14 +294,18 @@ def _method_options(method: str, given: dict) -> dict:
     return out
 
 
-def _bake_settings(method, color, channel, weld, up, meters_per_unit, fields, time_code, overlay, given) -> dict:
+def _bake_settings(
+    method, color, channel, weld, up, meters_per_unit, fields, time_code, overlay, given, ground=None
+) -> dict:
     """The arguments of :func:`aobake.pipeline.bake_file` (and of a batch's
     :class:`aobake.batch.Settings`) from the bake options; ``options``: the method's."""
     if color and channel:
         raise click.UsageError("--color and --channel both write the vertex colours; give one")
     selection = {key: tuple(given.pop(key, None) or ()) for key in ("receivers", "occluders")}
+    light = _light_settings(given)
     return dict(
         **{key: patterns for key, patterns in selection.items() if patterns},
+        **light,
         method=method,
         options=_method_options(method, given),
         color=color,
@@ -296,7 +316,90 @@ def _bake_settings(method, color, channel, weld, up, meters_per_unit, fields, ti
         fields=tuple(fields),
         time=time_code,
         overlay=overlay,
+        ground=ground,
     )
+
+
+def _light_settings(given: dict) -> dict:
+    """The light arguments of :func:`aobake.pipeline.bake_file` taken out of ``given``;
+    only those that differ from their defaults, so an AO bake's settings stay as they were."""
+    effects = given.pop("effects", None) or "auto"
+    lights = tuple(given.pop("lights", None) or ())
+    scene_lights = not given.pop("no_scene_lights", False)
+    split = bool(given.pop("split_irradiance", False))
+    exposure = given.pop("exposure", None) or 0.0
+    out = {}
+    if effects != "auto":
+        out["effects"] = effects
+    if lights:
+        out["lights"] = lights
+    if not scene_lights:
+        out["scene_lights"] = False
+    if split:
+        out["split_irradiance"] = True
+    if exposure:
+        out["exposure"] = exposure
+    return out
+
+
+def _effects(ctx, param, value):
+    """``--effects``: ``auto`` or a comma-separated subset of the effects, as a tuple."""
+    from .constants import EFFECTS
+
+    if value is None or value.strip() == "auto":
+        return None
+    names = tuple(t.strip() for t in value.split(",") if t.strip())
+    bad = [n for n in names if n not in EFFECTS]
+    if bad or not names:
+        raise click.BadParameter(f"{value!r}: give auto or a comma-separated list of {', '.join(EFFECTS)}")
+    return names
+
+
+def _light_spec(ctx, param, value):
+    """``--light``: each spec parsed now, so a typo is a usage error before any work."""
+    if not value:
+        return ()
+    from .io.lights import parse_light_spec
+
+    for k, text in enumerate(value, 1):
+        try:
+            parse_light_spec(text, k)
+        except ValueError as exc:
+            raise click.BadParameter(str(exc)) from None
+    return tuple(value)
+
+
+LIGHT_OPTIONS = [
+    click.option(
+        "--effects",
+        default=None,
+        callback=_effects,
+        metavar="auto|LIST",
+        help="What to compute: auto (what the scene calls for: ao always, direct light where it has lights "
+        "or emitters, indirect where some albedo is above zero) or a list such as ao,direct [default: auto].",
+    ),
+    click.option(
+        "--light",
+        "lights",
+        multiple=True,
+        callback=_light_spec,
+        metavar="SPEC",
+        help="Add a light: distant:DX,DY,DZ[:E[:R,G,B]] (towards the light; irradiance E) or "
+        "point:X,Y,Z[:I[:R,G,B]] (intensity I). Repeatable.",
+    ),
+    click.option("--no-scene-lights", is_flag=True, help="Ignore the file's own lights (its materials still count)."),
+    click.option(
+        "--exposure",
+        type=NumberRange(),
+        default=None,
+        help="Stops applied to the lit colour --color writes for a lit scene [default: 0].",
+    ),
+    click.option(
+        "--split-irradiance",
+        is_flag=True,
+        help="Lit scenes: also write irradiance_direct and irradiance_indirect beside irradiance.",
+    ),
+]
 
 
 def bake_options(f):
@@ -379,6 +482,14 @@ _BAKE_OPTIONS = [
         help="Only the parts this glob matches cast occlusion; the others are left out of the scene "
         "(still written). Repeatable.",
     ),
+    click.option(
+        "--ground",
+        type=GroundSpec(),
+        default=None,
+        help="An infinite occluding plane perpendicular to the up axis, at the lowest vertex (auto) "
+        "or at HEIGHT (mesh units); it receives nothing [default: none].",
+    ),
+    *LIGHT_OPTIONS,
     click.option("--quiet", "-q", is_flag=True, help="No progress bar or summary on stderr."),
 ]
 
@@ -394,7 +505,9 @@ _BAKE_OPTIONS = [
     help="Output .ply, .usda, .usdc, .usd, .usdz, .gltf or .glb (repeat for several formats from one bake).",
 )
 @bake_options
-def bake(mesh, output, method, color, channel, weld, up, meters_per_unit, overlay, time_code, fields, quiet, **given):
+def bake(
+    mesh, output, method, color, channel, weld, up, meters_per_unit, overlay, time_code, fields, ground, quiet, **given
+):
     """Bake AO of MESH into OUTPUT as the per-vertex attribute `ao`.
 
     `ao` = 1 - A: 1 = fully open, 0 = fully occluded. MESH: PLY, OBJ, STL, OFF,
@@ -405,12 +518,52 @@ def bake(mesh, output, method, color, channel, weld, up, meters_per_unit, overla
     from .pipeline import bake_file
     from .progress import make_progress
 
-    settings = _bake_settings(method, color, channel, weld, up, meters_per_unit, fields, time_code, overlay, given)
+    settings = _bake_settings(
+        method, color, channel, weld, up, meters_per_unit, fields, time_code, overlay, given, ground
+    )
     options = settings.pop("options")
     with compile_notice(quiet):
         report = bake_file(mesh, output, progress=make_progress(quiet), **settings, **options)
     if not quiet:
         click.echo(report.summary(), err=True)
+
+
+@main.command("plan")
+@click.argument("scene", type=click.Path(path_type=Path))
+@click.option(
+    "--method",
+    type=click.Choice(METHODS),
+    default=METHODS[0],
+    show_default=True,
+    help="The method the bake would use (light needs embree).",
+)
+@method_options
+@LIGHT_OPTIONS[0]
+@LIGHT_OPTIONS[1]
+@LIGHT_OPTIONS[2]
+@click.option("--time", "time_code", type=NumberRange(), default=None, help="USD input: the time code to read.")
+def plan(scene, method, effects, lights, no_scene_lights, time_code, **given):
+    """Say which effects baking SCENE calls for and why, which lights reach which
+    receivers, and how many rays it would cast. Computes nothing.
+
+    AO always; direct light when the scene has lights or emitters (its own, or --light);
+    indirect light when, besides, some albedo is above zero and --bounces is above 0.
+    """
+    import warnings
+
+    from .pipeline import plan_file
+
+    options = _method_options(method, {k: v for k, v in given.items() if k not in ("threads", "seed")})
+    with warnings.catch_warnings():
+        warnings.simplefilter("default")
+        surface, shading, result = plan_file(
+            scene, method=method, effects=effects or "auto", lights=lights, scene_lights=not no_scene_lights,
+            time=time_code, **options,
+        )  # fmt: skip
+    click.echo(f"{scene.name}: {surface.n_vertices} vertices, {surface.n_faces} triangles, --method {method}")
+    click.echo(f"albedo: {shading.sources.get('albedo', '?')}; emission: {shading.sources.get('emission', '?')}; "
+               f"lights: {shading.sources.get('lights', '?')}")  # fmt: skip
+    click.echo(result.report())
 
 
 @main.command()
@@ -452,7 +605,7 @@ def bake(mesh, output, method, color, channel, weld, up, meters_per_unit, overla
 @bake_options
 def batch(
     paths, outdir, formats, workers, scheduler, split, retries, force, emit_commands,
-    method, color, channel, weld, up, meters_per_unit, overlay, time_code, fields, quiet, **given,
+    method, color, channel, weld, up, meters_per_unit, overlay, time_code, fields, ground, quiet, **given,
 ):  # fmt: skip
     """Bake every mesh PATHS name into OUTDIR on a Dask cluster, skipping what is up to date.
 
@@ -479,7 +632,7 @@ def batch(
             f"--split applies to --method {'/'.join(SPLITTABLE)} only: {method} couples all vertices"
         )
     settings = Settings(
-        **_bake_settings(method, color, channel, weld, up, meters_per_unit, fields, time_code, overlay, given)
+        **_bake_settings(method, color, channel, weld, up, meters_per_unit, fields, time_code, overlay, given, ground)
     )
     if split > 1 and weld:
         raise click.UsageError("--split bakes vertex ranges; a welded mesh is baked whole (drop --weld or --split)")
@@ -656,12 +809,20 @@ def sweep(mesh, out_dir, reference_rays, repeats, no_plot, no_fields, up, seed, 
 )
 @click.option("--size", type=click.IntRange(16, 8192), default=640, show_default=True, help="Image side in pixels.")
 @click.option("--up", type=click.Choice(["Y", "Z"]), default=None, help="Up axis [default: the file's, else Y].")
-def preview(bake, output, view, azimuth, elevation, size, up):
-    """Render BAKE (a PLY, USD or glTF file with `ao`) to a PNG: AO as grey, white = open."""
+@click.option(
+    "--show",
+    type=click.Choice(["ao", "color"]),
+    default="ao",
+    show_default=True,
+    help="ao: the AO as grey; color: the vertex colours (--color's, the lit colour of a lit bake).",
+)
+def preview(bake, output, view, azimuth, elevation, size, up, show):
+    """Render BAKE (a PLY, USD or glTF file with `ao`) to a PNG: AO as grey, white = open,
+    or with --show color its vertex colours."""
     from .pipeline import preview_file
 
     with compile_notice(False):
-        preview_file(bake, output, size=size, up=up, view=view, azimuth=azimuth, elevation=elevation)
+        preview_file(bake, output, size=size, up=up, view=view, azimuth=azimuth, elevation=elevation, show=show)
 
 
 @main.command("warm-up")

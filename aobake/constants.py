@@ -144,3 +144,7 @@ PASS_GATE_WIDTH = 0.1
 # gain; 8 sectors beat 4 (docs/bunnell.md).
 DIRECTION_SECTORS = 8
 DIRECTION_WIDE = 1.0
+
+#: What a bake can compute, in order (``--effects``): the AO, the lights' direct light,
+#: and the light bounced between surfaces. ``auto`` computes what the scene calls for.
+EFFECTS = ("ao", "direct", "indirect")

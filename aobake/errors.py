@@ -27,6 +27,13 @@ class InputError(AobakeError):
         super().__init__(f"{name}: {problem}")
 
 
+class SettingError(InputError):
+    """An option's value does not fit the input it is applied to (``--ground`` above the
+    mesh): named after the input, a usage error (exit 2) on the command line."""
+
+    exit_code = 2
+
+
 class FormatError(AobakeError):
     """An output path has a suffix no writer supports (raised before any computation)."""
 

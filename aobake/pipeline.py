@@ -8,7 +8,7 @@ from __future__ import annotations
 import contextlib
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from time import perf_counter
 from typing import Any
@@ -102,16 +102,18 @@ def as_surface(mesh: Any, time: float | None = None) -> Surface:
     return mesh_from_trimesh(mesh)
 
 
-def _compute(surface: Surface, method: str, options: dict, progress: Progress | None, vertices=None):
+def _compute(surface: Surface, method: str, options: dict, progress: Progress | None, vertices=None, ground=None):
     """``(ao, n_rays, contacts, attributes)`` of ``method`` on ``vertices`` (None: all), a
-    method's numerical error named after the file."""
+    method's numerical error named after the file; ``ground``: a resolved
+    :class:`aobake.ground.Ground` (None: none)."""
     from .methods import run
 
+    extra = {} if ground is None else {"ground": ground}
     try:
         if vertices is None:  # the whole mesh: every method
-            result = run(method, surface, options, progress)
+            result = run(method, surface, options, progress, **extra)
         else:
-            result = run(method, surface, options, progress, vertices=vertices)
+            result = run(method, surface, options, progress, vertices=vertices, **extra)
     except NumericalError as exc:  # a method's own message, named after the file
         name = Path(surface.source).name
         if str(exc).startswith(f"{name}:"):
@@ -120,7 +122,9 @@ def _compute(surface: Surface, method: str, options: dict, progress: Progress | 
     return result.ao, result.n_rays, result.contacts, result.attributes or {}
 
 
-def bake(mesh: Any, method: str = "embree", *, progress: Progress | None = None, **options) -> AOArray:
+def bake(
+    mesh: Any, method: str = "embree", *, progress: Progress | None = None, ground=None, **options
+) -> AOArray:
     """Per-vertex ambient occlusion of a mesh, as accessibility (1 = open).
 
     Parameters
@@ -132,6 +136,9 @@ def bake(mesh: Any, method: str = "embree", *, progress: Progress | None = None,
         and polygon form factors over a cluster tree, no rays
         (:func:`aobake.methods.bunnell.bunnell_ao`: ``passes``, ``theta``, ``near``, ...).
     progress : Progress, optional
+    ground : "auto", float or aobake.ground.Ground, optional
+        An infinite occluding plane under the mesh, perpendicular to its up axis (the
+        file's, else Y): at its lowest vertex ("auto") or at that height (mesh units).
     **options
         Passed to the method, e.g. ``n_rays``, ``measure``, ``max_distance``, ``bias``,
         ``seed``, ``tolerance``, ``threads`` for :func:`aobake.methods.embree.embree_ao`.
@@ -149,8 +156,19 @@ def bake(mesh: Any, method: str = "embree", *, progress: Progress | None = None,
     True
     """
     surface = as_surface(mesh)
-    ao, *_ = _compute(surface, method, options, progress)
+    ao, *_ = _compute(surface, method, options, progress, ground=_ground(surface, ground, None))
     return ao
+
+
+def _ground(surface: Surface, ground, up_axis: str | None):
+    """The :class:`aobake.ground.Ground` of ``ground`` (None, "auto", a height or a Ground)
+    along ``up_axis`` (else the input's, else Y); a plane above a vertex is a SettingError."""
+    if ground is None:
+        return None
+    from .ground import resolve_ground
+
+    up = up_axis or surface.metadata.get("up_axis") or DEFAULT_UP_AXIS
+    return resolve_ground(ground, surface.positions, up, surface.source)
 
 
 def bake_file(
@@ -167,8 +185,14 @@ def bake_file(
     weld: bool = False,
     time: float | None = None,
     overlay: bool | None = None,
+    ground=None,
     receivers: Sequence[str] = (),
     occluders: Sequence[str] = (),
+    effects: str | Sequence[str] = "auto",
+    lights: Sequence = (),
+    scene_lights: bool = True,
+    split_irradiance: bool = False,
+    exposure: float = 0.0,
     **options,
 ) -> BakeReport:
     """Load ``source``, bake it once, write ``output`` (.ply, .usda, .usdc, .usd, .usdz,
@@ -201,10 +225,23 @@ def bake_file(
     names; :mod:`aobake.selection`). Occluders not selected are left out of the scene
     (still written); receivers not selected keep the input's ``ao``, else 1.0.
 
+    Light (:mod:`aobake.lighting`): ``effects`` ``"auto"`` computes what the scene calls
+    for (direct light where it has lights or emitters, bounces where some albedo is
+    above zero), or a list such as ``("ao", "direct")``; ``lights``: ``--light`` specs
+    added to the file's own (``scene_lights=False`` ignores those). A lit bake also
+    writes ``irradiance`` (and, with ``split_irradiance``, its direct and indirect
+    terms); ``color`` then writes the lit colour at ``exposure`` stops. A scene without
+    light bakes the AO alone, as if none of this existed.
+
+    ``ground`` ("auto" or a height in mesh units): an infinite occluding plane
+    perpendicular to the up axis that every AO method counts and nothing receives on
+    (:mod:`aobake.ground`), recorded as ``ground=<height>`` in the outputs.
+
     Returns
     -------
     BakeReport
     """
+    from . import lighting
     from .io import check_outputs
     from .selection import Selection
 
@@ -213,10 +250,17 @@ def bake_file(
     surface = as_surface(source, time)
     check_outputs(surface, outputs, channel)
     selection = Selection.of(surface, receivers, occluders)
-    part = _bake_range(surface, method, options, progress, None, weld=weld, selection=selection)
+    light = lighting.prepare(
+        source, surface, method, options, effects=effects, lights=lights, scene_lights=scene_lights,
+        split=split_irradiance, exposure=exposure,
+    )  # fmt: skip
+    plane = _ground(surface, ground, up_axis)
+    part = _bake_range(
+        surface, method, options, progress, None, weld=weld, selection=selection, light=light, ground=plane
+    )
     return _write(
         source, surface, outputs, [part], method, options, placed, color, up_axis, meters_per_unit,
-        channel, weld, overlay, selection,
+        channel, weld, overlay, selection, light, plane,
     )  # fmt: skip
 
 
@@ -236,7 +280,10 @@ class PartResult:
     compile_seconds : float
         Time spent compiling kernels (a cold numba cache), first run only.
     attributes : dict of str to array
-        Extra per-vertex results of the range (``bentNormal``), written beside ``ao``.
+        Extra per-vertex results of the range (``bentNormal``, ``irradiance``), written
+        beside ``ao``.
+    light : aobake.lighting.LightTotals or None
+        Rays and time of a lit scene's light (its time is in ``seconds`` too).
     """
 
     vertices: tuple
@@ -246,6 +293,7 @@ class PartResult:
     seconds: float
     compile_seconds: float = 0.0
     attributes: dict = field(default_factory=dict)
+    light: Any = None
 
 
 def bake_part(
@@ -257,6 +305,11 @@ def bake_part(
     progress: Progress | None = None,
     receivers: Sequence[str] = (),
     occluders: Sequence[str] = (),
+    effects: str | Sequence[str] = "auto",
+    lights: Sequence = (),
+    scene_lights: bool = True,
+    ground=None,
+    up_axis: str | None = None,
     **options,
 ) -> PartResult:
     """Bake one vertex range of ``source`` (a path or a surface) against the whole mesh.
@@ -265,8 +318,11 @@ def bake_part(
     ranges (computed once the mesh is loaded). Only methods in
     :data:`aobake.methods.SPLITTABLE` bake ranges; a range of the whole mesh
     (``vertices=None, parts=None``) works for every method. ``receivers``,
-    ``occluders``: as for :func:`bake_file` (give :func:`write_parts` the same).
+    ``occluders``: as for :func:`bake_file` (give :func:`write_parts` the same). A lit
+    scene (``effects``, ``lights``, ``scene_lights`` as for :func:`bake_file`) is baked
+    whole: a range of it is an error. ``ground`` and ``up_axis``: as for :func:`bake_file`.
     """
+    from . import lighting
     from .selection import Selection
 
     surface = as_surface(source)
@@ -275,7 +331,14 @@ def bake_part(
         n = surface.n_vertices
         vertices = (n * k // count, n * (k + 1) // count)
     selection = Selection.of(surface, receivers, occluders)
-    return _bake_range(surface, method, options, progress, vertices, selection=selection)
+    whole = vertices is None or tuple(vertices) == (0, surface.n_vertices)
+    light = lighting.prepare(source, surface, method, options, effects=effects, lights=lights, scene_lights=scene_lights)
+    if light is not None and not whole:
+        raise InputError(
+            surface.source, f"a lit scene ({light.plan.reasons['direct']}) is baked whole: bake it unsplit, or with --effects ao"
+        )
+    plane = _ground(surface, ground, up_axis)
+    return _bake_range(surface, method, options, progress, vertices, selection=selection, light=light, ground=plane)
 
 
 def write_parts(
@@ -294,6 +357,12 @@ def write_parts(
     overlay: bool | None = None,
     receivers: Sequence[str] = (),
     occluders: Sequence[str] = (),
+    effects: str | Sequence[str] = "auto",
+    lights: Sequence = (),
+    scene_lights: bool = True,
+    split_irradiance: bool = False,
+    exposure: float = 0.0,
+    ground=None,
     **options,
 ) -> BakeReport:
     """Stitch the ranges of :func:`bake_part` in order and write them like :func:`bake_file`.
@@ -312,14 +381,22 @@ def write_parts(
         expected = part.vertices[1]
     if expected != surface.n_vertices:
         raise ValueError(f"parts cover {expected} of {surface.n_vertices} vertices")
+    from . import lighting
     from .io import check_outputs
     from .selection import Selection
 
     check_outputs(surface, outputs, channel)
     selection = Selection.of(surface, receivers, occluders)
+    light = None
+    if any(p.light is not None for p in parts):  # a whole, lit part (bake_part refuses lit ranges)
+        light = lighting.prepare(
+            source, surface, method, options, effects=effects, lights=lights, scene_lights=scene_lights,
+            split=split_irradiance, exposure=exposure,
+        )  # fmt: skip
+    plane = _ground(surface, ground, up_axis)
     return _write(
         source, surface, outputs, parts, method, options, placed, color, up_axis, meters_per_unit,
-        channel, False, overlay, selection,
+        channel, False, overlay, selection, light, plane,
     )  # fmt: skip
 
 
@@ -338,11 +415,15 @@ def _check_outputs(output, source, overlay: bool | None = None) -> list[Path]:
 
 
 def _bake_range(
-    surface: Surface, method: str, options: dict, progress, vertices, *, weld: bool = False, selection=None
-) -> PartResult:
+    surface: Surface, method: str, options: dict, progress, vertices, *, weld: bool = False, selection=None,
+    light=None, ground=None,
+) -> PartResult:  # fmt: skip
     """Run ``method`` on ``vertices`` (None: all); compiling kernels is kept out of the time.
     ``weld``: bake the welded mesh (whole meshes only), results per input vertex.
-    ``selection``: trace only its occluders, from its receivers (:func:`_compute_selected`)."""
+    ``selection``: trace only its occluders, from its receivers (:func:`_compute_selected`).
+    ``light``: a lit scene's :class:`aobake.lighting.LightJob`, computed on the same
+    scene (whole meshes only). ``ground``: a resolved plane every AO method counts."""
+    totals = None
     with CompileWatch() as watch:
         t0 = perf_counter()
         if weld:
@@ -352,19 +433,42 @@ def _bake_range(
                 raise ValueError("a welded mesh is baked whole: weld takes no vertex range")
             welded, inverse = weld_vertices(surface)
             scene = welded if selection is None else selection.scene(welded)
-            ao, n_rays, contacts, attributes = _compute(scene, method, options, progress)
+            ao, n_rays, contacts, attributes = _compute(scene, method, options, progress, ground=ground)
             ao = np.asarray(ao)[inverse]
             attributes = {k: np.asarray(v)[inverse] for k, v in attributes.items()}
         elif selection is not None:
-            ao, n_rays, contacts, attributes = _compute_selected(surface, method, options, progress, vertices, selection)
+            ao, n_rays, contacts, attributes = _compute_selected(
+                surface, method, options, progress, vertices, selection, ground
+            )
         else:
-            ao, n_rays, contacts, attributes = _compute(surface, method, options, progress, vertices)
+            ao, n_rays, contacts, attributes = _compute(surface, method, options, progress, vertices, ground)
+        if light is not None and light.lit:
+            attributes, totals = _compute_light(surface, method, options, progress, vertices, weld, selection, light, attributes)
         seconds = perf_counter() - t0 - watch.seconds
     lo, hi = (0, surface.n_vertices) if vertices is None else vertices
-    return PartResult((lo, hi), ao, n_rays, contacts, seconds, watch.seconds, attributes)
+    return PartResult((lo, hi), ao, n_rays, contacts, seconds, watch.seconds, attributes, totals)
 
 
-def _compute_selected(surface: Surface, method: str, options: dict, progress, vertices, selection):
+def _compute_light(surface, method, options, progress, vertices, weld, selection, light, attributes):
+    """A lit scene's irradiance attributes added to ``attributes``, on the scene the AO
+    was traced on (welded, occluders only); and the light's ray totals."""
+    from . import lighting
+    from .mesh import weld_vertices
+
+    if vertices is not None and tuple(vertices) != (0, surface.n_vertices):
+        raise InputError(surface.source, "a lit scene is baked whole: it takes no vertex range")
+    faces = None if selection is None or selection.occluders.all() else selection.kept_faces(surface)
+    inverse = None
+    scene = surface
+    if weld:
+        scene, inverse = weld_vertices(surface)
+    if faces is not None:
+        scene = replace(scene, faces=scene.faces[faces])
+    extra, totals = lighting.compute(light, scene, method, options, progress, faces=faces, inverse=inverse)
+    return {**attributes, **extra}, totals
+
+
+def _compute_selected(surface: Surface, method: str, options: dict, progress, vertices, selection, ground=None):
     """:func:`_compute` on the occluders' scene; a method that bakes vertex ranges bakes
     only the span of receiving vertices in ``vertices`` (the rest is replaced in
     :func:`_write`)."""
@@ -373,13 +477,13 @@ def _compute_selected(surface: Surface, method: str, options: dict, progress, ve
 
     scene = selection.scene(surface)
     if method not in SPLITTABLE:
-        return _compute(scene, method, options, progress, vertices)
+        return _compute(scene, method, options, progress, vertices, ground)
     lo, hi = (0, surface.n_vertices) if vertices is None else vertices
     found = np.flatnonzero(selection.receiving(surface)[lo:hi])
     if found.size == 0:
         return np.ones(hi - lo), 0, 0, {}
     a, b = lo + int(found[0]), lo + int(found[-1]) + 1
-    ao, n_rays, contacts, attributes = _compute(scene, method, options, progress, (a, b))
+    ao, n_rays, contacts, attributes = _compute(scene, method, options, progress, (a, b), ground)
     full = np.ones(hi - lo)
     full[a - lo : b - lo] = ao
     padded = {}
@@ -406,7 +510,7 @@ def _stitched_attributes(surface: Surface, parts) -> dict:
 
 def _write(
     source, surface, outputs, parts, method, options, placed, color, up_axis, meters_per_unit,
-    channel=None, weld=False, overlay=None, selection=None,
+    channel=None, weld=False, overlay=None, selection=None, light=None, ground=None,
 ) -> BakeReport:  # fmt: skip
     """Fields applied, checks, every output written atomically (all or none)."""
     from .io import atomic_write, write_bake
@@ -438,8 +542,25 @@ def _write(
         custom["weld"] = True
     if channel is not None:
         custom["channel"] = channel
+    if ground is not None:
+        custom["ground"] = float(ground.height)
     if selection is not None:
         custom.update(selection.provenance)
+    display = None
+    light_rays = 0
+    note = _time_note(surface.metadata)
+    if light is not None:
+        from . import lighting
+
+        custom.update(lighting.custom_data(light, options, method))
+        if color:
+            display = lighting.lit_colour(light, attributes[lighting.IRRADIANCE])
+        totals = [p.light for p in parts if p.light is not None]
+        total = lighting.LightTotals(
+            sum(t.shadow_rays for t in totals), sum(t.path_rays for t in totals), sum(t.seconds for t in totals)
+        )
+        note = ", ".join(x for x in (note, lighting.summary(light, total)) if x)
+        light_rays = total.shadow_rays + total.path_rays
     # Stage metrics: what the caller says, else what the input said (USD, glTF), else
     # the documented defaults. An unauthored metersPerUnit would mean centimetres.
     meta = surface.metadata
@@ -458,20 +579,21 @@ def _write(
                 meters_per_unit=meters_per_unit or meta.get("meters_per_unit") or DEFAULT_METERS_PER_UNIT,
                 overlay=overlay,
                 attributes=attributes,
+                display=display,
             )
     return BakeReport(
         source=Path(str(source)).name,
         output=", ".join(str(p) for p in outputs),
         method=method,
         n_vertices=surface.n_vertices,
-        n_rays=sum(p.n_rays for p in parts),
+        n_rays=sum(p.n_rays for p in parts) + light_rays,
         seconds=seconds,
         contacts=parts[0].contacts,
         options=dict(options),
         field_skipped=skipped,
         field_seconds=field_seconds if placed else 0.0,
         compile_seconds=watch.seconds + sum(p.compile_seconds for p in parts),
-        note=_time_note(meta),
+        note=note,
     )
 
 
@@ -664,6 +786,26 @@ def _cached_reference(cache: Path, n: int) -> np.ndarray | None:
     return values
 
 
+def plan_file(
+    source: str | Path,
+    *,
+    method: str = "embree",
+    effects: str | Sequence[str] = "auto",
+    lights: Sequence = (),
+    scene_lights: bool = True,
+    time: float | None = None,
+    **options,
+):
+    """What ``aobake bake`` of ``source`` with these settings would compute, and why:
+    ``(surface, shading, plan)`` (:func:`aobake.lighting.plan_for`). Reads the file;
+    computes nothing."""
+    from . import lighting
+
+    surface = as_surface(source, time)
+    shading = lighting.read(source, surface, lights=lights, scene_lights=scene_lights)
+    return surface, shading, lighting.plan_for(surface, shading, method, options, lighting.parse_effects(effects))
+
+
 def preview_file(
     bake: str | Path,
     output: str | Path,
@@ -673,19 +815,24 @@ def preview_file(
     view: str = "iso",
     azimuth: float | None = None,
     elevation: float | None = None,
+    show: str = "ao",
 ) -> None:
-    """Render a bake (a mesh file carrying ``ao``: PLY, USD or glTF) to a PNG, AO as grey."""
-    from .io import load_mesh, read_bake
+    """Render a bake (a mesh file carrying ``ao``: PLY, USD or glTF) to a PNG, AO as grey;
+    ``show="color"``: its vertex colours (the lit colour of ``--color``) instead."""
+    from .io import load_mesh, read_bake, read_colours
     from .tools.preview import preview_png, write_png
 
     if Path(output).suffix.lower() != ".png":
         raise FormatError(f"{Path(output).name}: previews are written as PNG; use a .png suffix")
     check_output_dir(output)
     surface = load_mesh(bake)
-    ao = read_bake(bake, n_vertices=surface.n_vertices)
+    if show == "color":
+        values = read_colours(bake, n_vertices=surface.n_vertices)
+    else:
+        values = read_bake(bake, n_vertices=surface.n_vertices)
     up = up or surface.metadata.get("up_axis") or DEFAULT_UP_AXIS
     png = preview_png(
-        surface.positions, surface.faces, ao, size=size, up=up, view=view, azimuth=azimuth, elevation=elevation
+        surface.positions, surface.faces, values, size=size, up=up, view=view, azimuth=azimuth, elevation=elevation
     )
     write_png(output, png)
 
@@ -975,6 +1122,9 @@ def warm_up(progress: Progress | None = None) -> WarmUpReport:
             for flags, extra in _WARM_UP_VARIANTS.get(method, ()):
                 bake_file(d / "scene.ply", d / f"{method}_variant.ply", method=method, progress=progress, **extra)
                 steps.append(f"bake --method {method} {flags}")
+        bake_file(d / "scene.ply", d / "lit.ply", method=METHODS[0], lights=("point:0,3,0:10",), color=True,
+                  n_rays=4, light_samples=2, indirect_rays=2, progress=progress)  # the light kernels
+        steps.append("bake --light")
         fit_field_file(d / "cube.ply", d / "cube.npz", progress=progress, resolution=4, radial_samples=8)
         steps.append("field")
         grid = d / "grid.ply"

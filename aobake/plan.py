@@ -13,11 +13,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .constants import EFFECTS
 from .mesh import Surface
 from .shading import Light, Shading
-
-#: Every effect, in the order they are computed and listed.
-EFFECTS = ("ao", "direct", "indirect")
 
 
 @dataclass(frozen=True)

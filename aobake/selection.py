@@ -71,13 +71,18 @@ class Selection:
             provenance=provenance,
         )
 
+    def kept_faces(self, surface: Surface) -> np.ndarray:
+        """(m,) bool: the triangles of the occluders."""
+        keep = np.zeros(surface.n_faces, dtype=bool)
+        for part, casts in zip(surface.parts, self.occluders, strict=True):
+            keep[part.face_start : part.face_stop] = casts
+        return keep
+
     def scene(self, surface: Surface) -> Surface:
         """``surface`` with only the occluders' triangles (all vertices kept, in order)."""
         if self.occluders.all():
             return surface
-        keep = np.zeros(surface.n_faces, dtype=bool)
-        for part, casts in zip(surface.parts, self.occluders, strict=True):
-            keep[part.face_start : part.face_stop] = casts
+        keep = self.kept_faces(surface)
         if not keep.any():
             raise InputError(surface.source, "--occluders selects parts without triangles; nothing casts")
         return replace(surface, faces=surface.faces[keep])

@@ -229,10 +229,10 @@ def default_shading(n_vertices: int, n_faces: int, lights=()) -> Shading:
 
 
 def vertex_means(faces: np.ndarray, face_values: FloatArray, n_vertices: int) -> FloatArray:
-    """(n, 3): each vertex's mean of its faces' rows (zero for a vertex on no face)."""
-    total = np.zeros((n_vertices, face_values.shape[1]))
-    count = np.zeros(n_vertices)
-    for corner in range(3):
-        np.add.at(total, faces[:, corner], face_values)
-        np.add.at(count, faces[:, corner], 1.0)
+    """(n, k): each vertex's mean of its faces' rows (zero for a vertex on no face)."""
+    faces = np.asarray(faces, dtype=np.int64)
+    corners = faces.ravel()
+    count = np.bincount(corners, minlength=n_vertices).astype(np.float64)
+    rows = np.repeat(np.asarray(face_values, dtype=np.float64), faces.shape[1], axis=0)
+    total = np.stack([np.bincount(corners, weights=rows[:, c], minlength=n_vertices) for c in range(rows.shape[1])], axis=1)
     return total / np.maximum(count, 1.0)[:, None]

@@ -87,12 +87,20 @@ class Tracer:
         return np.minimum(np.asarray(tfar, dtype=np.float64) / self.scale, INFINITE_DISTANCE)
 
     def occluded(self, origins, directions, tfar: float | None = None) -> np.ndarray:
-        """(k,) int32: 0 where a ray hits within ``tfar`` (mesh units, one for all or (k,)
-        per ray; None: unbounded), -1 else. ``origins``: float32 in Embree's frame
-        (:meth:`frame`); ``directions``: float32."""
-        dists = self._dists(tfar)
-        dists = float(dists) if np.ndim(dists) == 0 else np.ascontiguousarray(dists, dtype=np.float32)
+        """(k,) int32: 0 where a ray hits within ``tfar`` (mesh units; None: unbounded),
+        -1 else. ``origins``: float32 in Embree's frame (:meth:`frame`); ``directions``:
+        float32."""
+        return self._scene.run(origins, directions, dists=float(self._dists(tfar)), query="OCCLUDED")
+
+    def occluded_within(self, origins, directions, dists: np.ndarray) -> np.ndarray:
+        """:meth:`occluded` with per-ray lengths ``dists`` (k,) float32 already in Embree's
+        frame (mesh units / ``scale``, at most ``INFINITE_DISTANCE``), as kernels make them."""
         return self._scene.run(origins, directions, dists=dists, query="OCCLUDED")
+
+    def first_hits(self, origins, directions, tfar: float | None = None) -> np.ndarray:
+        """(k,) int32: the triangle each ray hits first within ``tfar`` (mesh units;
+        None: unbounded), -1 for none; ``origins`` as for :meth:`occluded`."""
+        return self._scene.run(origins, directions, dists=float(self._dists(tfar)), query="INTERSECT")
 
     def intersect(self, origins, directions, tfar: np.ndarray) -> dict:
         """Closest hits: dict with ``primID`` (k,) int32 (-1 = miss), ``tfar`` (mesh

@@ -8,7 +8,8 @@ for bit (issue 19).
 Run it from the checkout to check (``PYTHONPATH=...``). With both cases the first run
 compiles for a few minutes of CPU (every variant of the disk method's tree pass), so the
 test suite runs only the field case (``tests/test_cache_states.py``). Exit status 1
-when an array differs between runs.
+when an array differs between runs (still so for the disk method's passes >= 2, whose
+tree pass keeps fastmath: docs/first-run.md).
 """
 
 from __future__ import annotations

@@ -6,6 +6,7 @@ from __future__ import annotations
 import io
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -64,7 +65,7 @@ def test_compile_watch_silent_without_a_stream_and_when_nothing_compiles(capsys)
 def compiling_compute(monkeypatch):
     """``pipeline._compute`` replaced by one that compiles a fresh kernel, then sleeps
     0.05 s (the "work"), and returns ao = 0.5 everywhere with 1000 rays."""
-    def compute(surface, method, options, progress, vertices=None):
+    def compute(surface, method, options, progress, vertices=None, ground=None):
         kernel = _fresh_kernel()
         kernel(np.ones(3))
         time.sleep(0.05)
@@ -108,7 +109,7 @@ def test_cli_says_it_compiles_unless_quiet(compiling_compute, cube_ply, tmp_path
 
 
 def test_nothing_compiled_nothing_said(cube_ply, tmp_path, monkeypatch):
-    monkeypatch.setattr(pipeline, "_compute", lambda s, m, o, p, v=None: (np.ones(s.n_vertices), 0, 0, {}))
+    monkeypatch.setattr(pipeline, "_compute", lambda s, m, o, p, v=None, g=None: (np.ones(s.n_vertices), 0, 0, {}))
     result = CliRunner().invoke(main, ["bake", str(cube_ply), "-o", str(tmp_path / "a.ply")])
     assert result.exit_code == 0
     assert COMPILING not in result.stderr and "compiling" not in result.stderr
@@ -152,6 +153,9 @@ def test_warm_up_compiles_what_the_commands_need(tmp_path):
         ["field", str(tmp_path / "ball.ply"), "-o", str(tmp_path / "ball.npz"), "--resolution", "4"],
         ["bake", str(mesh), "-o", str(tmp_path / "f.ply"), "--field", f"{tmp_path / 'ball.npz'}@0,0,1"],
         ["preview", str(tmp_path / "e.ply"), "-o", str(tmp_path / "e.png"), "--size", "32"],
+        ["bake", str(mesh), "-o", str(tmp_path / "l.ply"), "--light", "distant:1,2,1:3", "--color", "--rays", "8"],
+        ["bake", str(Path(__file__).resolve().parents[1] / "data" / "cornell_box.usda"), "-o",
+         str(tmp_path / "c.ply"), "--rays", "8", "--light-samples", "4", "--indirect-rays", "4"],
     ):
         result = runner.invoke(main, args)
         assert result.exit_code == 0, (args, result.output)

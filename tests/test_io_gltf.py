@@ -93,7 +93,8 @@ def test_document_kept_whole(baked, name):
     # every source accessor decodes to the same values (UVs, normals, colours, indices)
     for i in range(len(src["accessors"])):
         np.testing.assert_array_equal(ga.accessor(gl, blobs, i), ga.accessor(src, src_blobs, i))
-    # primitives: the source's attributes and fields, plus _AO (and COLOR_0 with --color)
+    # primitives: the source's attributes and fields, plus _AO (and COLOR_0 with --color);
+    # the asset has an emissive material, so the bake lights it: _IRRADIANCE too
     copy_of_box = gl["meshes"][-1]["primitives"][0]
     for mesh, src_mesh in zip(gl["meshes"], src["meshes"] + [src["meshes"][1]], strict=True):
         assert {k: v for k, v in mesh.items() if k != "primitives"} == {
@@ -104,7 +105,7 @@ def test_document_kept_whole(baked, name):
                 k: v for k, v in q.items() if k != "attributes"
             }
             added = set(p["attributes"]) - set(q["attributes"])
-            assert added <= {"_AO", "COLOR_0"}
+            assert added <= {"_AO", "COLOR_0", "_IRRADIANCE"}
             for key in q["attributes"]:
                 if key != "COLOR_0" or not name.startswith("gltf"):
                     assert p["attributes"][key] == q["attributes"][key]

@@ -173,6 +173,10 @@ def test_shadow_disabled_and_a_shadowing_occluder():
     r = lit(surface, [Light.make("point", "p", (2, 2, 2), position=p, shadow=False)], bounces=0)
     assert np.allclose(r.direct[:nf, 0], open_value, rtol=1e-12)
     assert r.n_shadow_rays == 0 and r.lights[0].shadow_rays == 0
+    # --max-distance: a plate farther than that casts no shadow (as for the AO rays)
+    r = lit(surface, [Light.make("point", "p", (2, 2, 2), position=p)], bounces=0, max_distance=0.3)
+    assert np.allclose(r.direct[:nf, 0], open_value, rtol=1e-12)
+    assert r.n_shadow_rays == surface.n_vertices  # every vertex, the plate's too, faces the light
 
 
 @pytest.mark.parametrize("bounces", [0, 1, 2])
@@ -281,3 +285,24 @@ def test_indirect_converges_like_independent_samples():
         return np.sqrt(((a - b) ** 2).sum() / (b**2).sum())
 
     assert gap(512) < 0.4 * gap(32)
+
+
+def test_shading_that_does_not_fit_is_refused():
+    surface = grid(cells=1)
+    sh = default_shading(surface.n_vertices, surface.n_faces)
+    with pytest.raises(ValueError, match="face_albedo has shape"):
+        irradiance(surface, Shading((), sh.face_albedo[:1], sh.face_emission, sh.vertex_albedo, sh.vertex_emission))
+    with pytest.raises(ValueError, match="above 1"):
+        irradiance(surface, Shading((), sh.face_albedo * 10, sh.face_emission, sh.vertex_albedo, sh.vertex_emission))
+    with pytest.raises(ValueError, match="non-finite"):
+        irradiance(surface, Shading((), sh.face_albedo, sh.face_emission * np.nan, sh.vertex_albedo, sh.vertex_emission))
+
+
+def test_lazy_exports_and_defaults():
+    import aobake.methods.embree as embree
+
+    assert embree.irradiance is irradiance
+    opts = embree.LightOptions()
+    assert (opts.n_samples, opts.bounces, opts.n_indirect, opts.tolerance) == (64, 1, 256, None)
+    with pytest.raises(ValueError, match="bounces"):
+        embree.LightOptions(bounces=-1)

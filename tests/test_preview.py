@@ -126,3 +126,77 @@ def test_cli_compare_render(baked, tmp_path):
     assert r.exit_code == 0, r.output
     img = _decode_png(png.read_bytes())
     assert img.shape[1] > 3 * img.shape[0]  # three panels side by side
+
+
+# -- --show color: the vertex colours ----------------------------------------------------
+
+
+def _colour_quad_ply(path, rgb_bytes, *, colours=True):
+    import plyfile
+
+    fields = [("x", "f4"), ("y", "f4"), ("z", "f4"), ("ao", "f4")]
+    fields += [("red", "u1"), ("green", "u1"), ("blue", "u1")] if colours else []
+    v = np.zeros(4, dtype=fields)
+    v["x"], v["y"], v["ao"] = [-1, 1, 1, -1], [-1, -1, 1, 1], 0.5
+    if colours:
+        v["red"], v["green"], v["blue"] = rgb_bytes
+    f = np.zeros(2, dtype=[("vertex_indices", "i4", (3,))])
+    f["vertex_indices"] = [[0, 1, 2], [0, 2, 3]]
+    plyfile.PlyData([plyfile.PlyElement.describe(v, "vertex"), plyfile.PlyElement.describe(f, "face")]).write(path)
+    return path
+
+
+def _centre(png_path):
+    img = _decode_png(png_path.read_bytes())
+    return img[img.shape[0] // 2, img.shape[1] // 2]
+
+
+def test_show_color_ply_bytes_come_back(tmp_path):
+    """PLY colour bytes are sRGB: decoded to linear, drawn sRGB-encoded, the same bytes."""
+    src = _colour_quad_ply(tmp_path / "q.ply", (200, 40, 90))
+    png = tmp_path / "q.png"
+    args = ["preview", str(src), "-o", str(png), "--size", "32", "--up", "Z", "--view", "top"]
+    r = CliRunner().invoke(main, args + ["--show", "color"])
+    assert r.exit_code == 0, r.output
+    np.testing.assert_array_equal(_centre(png), [200, 40, 90])
+    # the default stays the AO as grey (0.5 -> 128)
+    assert CliRunner().invoke(main, args).exit_code == 0
+    np.testing.assert_array_equal(_centre(png), [128, 128, 128])
+
+
+def test_show_color_usd_display_color_and_gltf_color0(tmp_path):
+    from pxr import Sdf, Usd, UsdGeom
+
+    from aobake.io.color import linear_to_srgb
+
+    linear = np.array([0.6, 0.05, 0.3])
+    stage = Usd.Stage.CreateNew(str(tmp_path / "q.usda"))
+    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.z)
+    mesh = UsdGeom.Mesh.Define(stage, "/q")
+    mesh.CreatePointsAttr([(-1, -1, 0), (1, -1, 0), (1, 1, 0), (-1, 1, 0)])
+    mesh.CreateFaceVertexCountsAttr([4])
+    mesh.CreateFaceVertexIndicesAttr([0, 1, 2, 3])
+    pv = UsdGeom.PrimvarsAPI(mesh)
+    pv.CreatePrimvar("ao", Sdf.ValueTypeNames.FloatArray, "vertex").Set([0.5] * 4)
+    mesh.CreateDisplayColorPrimvar("vertex").Set([tuple(linear)] * 4)
+    stage.Save()
+    png = tmp_path / "u.png"
+    r = CliRunner().invoke(main, ["preview", str(tmp_path / "q.usda"), "-o", str(png), "--size", "32", "--view", "top", "--show", "color"])
+    assert r.exit_code == 0, r.output
+    np.testing.assert_array_equal(_centre(png), np.round(linear_to_srgb(linear) * 255))
+    # a PLY's colours kept in a glTF bake as linear COLOR_0 show the same bytes
+    src = _colour_quad_ply(tmp_path / "c.ply", (10, 120, 250))
+    glb = tmp_path / "c.glb"
+    assert CliRunner().invoke(main, ["bake", str(src), "-o", str(glb), "--rays", "4", "-q"]).exit_code == 0
+    r = CliRunner().invoke(main, ["preview", str(glb), "-o", str(png), "--size", "32", "--up", "Z", "--view", "top", "--show", "color"])
+    assert r.exit_code == 0, r.output
+    np.testing.assert_allclose(_centre(png), [10, 120, 250], atol=1)
+
+
+def test_show_color_without_colours_is_one_line(tmp_path):
+    src = _colour_quad_ply(tmp_path / "n.ply", None, colours=False)
+    png = tmp_path / "n.png"
+    r = CliRunner().invoke(main, ["preview", str(src), "-o", str(png), "--show", "color"])
+    assert r.exit_code == 1
+    assert r.stderr == "Error: n.ply: PLY vertices have no colours (red, green, blue) to show\n"
+    assert not png.exists()

@@ -41,6 +41,7 @@ __all__ = [
     "read_ao_ply",
     "read_ao_usd",
     "read_bake",
+    "read_colours",
     "usd_output_mode",
     "write_bake",
     "write_ply",
@@ -402,6 +403,32 @@ def read_bake(path: str | Path, *, n_vertices: int | None = None) -> np.ndarray:
             path, f"has {ao.shape[0]} ao values but the mesh has {n_vertices} vertices"
         )
     return ao
+
+
+def read_colours(path: str | Path, *, n_vertices: int | None = None) -> np.ndarray:
+    """(n, 3) linear RGB vertex colours of a bake: PLY ``red green blue`` (sRGB decoded),
+    USD ``displayColor``, glTF ``COLOR_0``; in :func:`read_bake`'s vertex order.
+
+    Raises
+    ------
+    InputError
+        Unsupported suffix, no colours, or a count different from ``n_vertices``.
+    """
+    path = Path(path)
+    kind = READ_SUFFIXES.get(path.suffix.lower())
+    if kind == "ply":
+        rgb = ply.read_colours_ply(path)
+    elif kind == "usd":
+        rgb = usd.read_colours_usd(path)
+    elif kind == "gltf":
+        rgb = gltf.read_colours_gltf(path)
+    else:
+        raise InputError(path, f"has no vertex colours to show ({path.suffix or 'no suffix'}); use a PLY, USD or glTF bake")
+    if n_vertices is not None and rgb.shape[0] != n_vertices:
+        raise InputError(path, f"has {rgb.shape[0]} vertex colours but the mesh has {n_vertices} vertices")
+    if not np.isfinite(rgb).all():
+        raise InputError(path, "vertex colours are not finite")
+    return rgb
 
 
 def _read_npy(path: Path) -> np.ndarray:

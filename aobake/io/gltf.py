@@ -634,3 +634,25 @@ def _moved(doc: Document, uri: str | None, path: Path) -> str | None:
 
 def _data_uri(data: bytes) -> str:
     return "data:application/octet-stream;base64," + base64.b64encode(data).decode("ascii")
+
+
+def read_colours_gltf(path: str | Path) -> np.ndarray:
+    """(n, 3) linear ``COLOR_0`` of every triangle primitive, in :func:`read_ao_gltf`'s order."""
+    path = Path(path)
+    try:
+        doc = read_document(path)
+        slots = scene_slots(doc)
+    except InputError:
+        raise
+    except (OSError, ValueError, KeyError, IndexError, TypeError) as exc:
+        raise InputError(path, f"cannot read as glTF: {exc}") from exc
+    values = []
+    for slot in slots:
+        attributes = doc.json["meshes"][slot.mesh]["primitives"][slot.primitive]["attributes"]
+        if "COLOR_0" not in attributes:
+            name = doc.json["nodes"][slot.node].get("name", slot.node)
+            raise InputError(path, f"node {name!r} has a primitive without COLOR_0 colours to show")
+        a = attributes["COLOR_0"]
+        rgb = as_float(accessor_values(doc, a), doc.json["accessors"][a].get("normalized", False))[:, :3]
+        values.append(rgb)
+    return np.concatenate(values) if values else np.zeros((0, 3))

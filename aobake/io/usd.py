@@ -649,3 +649,35 @@ def _usd_normals(mesh, time, n: int) -> FloatArray | None:
         return None
     normals = np.asarray(values, dtype=np.float64).reshape(-1, 3)
     return normals if len(normals) == n else None
+
+
+def read_colours_usd(path: str | Path) -> np.ndarray:
+    """(n, 3) linear ``primvars:displayColor`` of every mesh, in :func:`read_ao_usd`'s
+    order (a constant colour repeated for each point)."""
+    path = check_input_file(path, "USD file")
+    from pxr import Sdf, Usd, UsdGeom
+
+    stage = _open_fresh(path, Sdf, Usd)
+    parts: list[np.ndarray] = []
+    for prim in baked_meshes(stage, Usd.TimeCode.Default()):
+        mesh = UsdGeom.Mesh(prim)
+        primvar = UsdGeom.PrimvarsAPI(prim).GetPrimvar("displayColor")
+        values = primvar.ComputeFlattened() if primvar and primvar.HasValue() else None
+        if values is None:
+            raise InputError(path, f"{prim.GetPath()}: no displayColor to show")
+        values = np.asarray(values, dtype=np.float64).reshape(-1, 3)
+        points = _usd_value(mesh.GetPointsAttr(), Usd.TimeCode.Default(), None)
+        n_points = 0 if points is None else len(points)
+        interp = primvar.GetInterpolation()
+        if interp == UsdGeom.Tokens.constant and len(values) == 1:
+            values = np.repeat(values, n_points, axis=0)
+        elif interp not in (UsdGeom.Tokens.vertex, UsdGeom.Tokens.varying) or len(values) != n_points:
+            raise InputError(
+                path,
+                f"{prim.GetPath()}: displayColor has {len(values)} {interp} values "
+                f"but the mesh has {n_points} points; expected one per vertex",
+            )
+        parts.append(values)
+    if not parts:
+        raise InputError(path, "no mesh in the stage")
+    return np.concatenate(parts)

@@ -257,6 +257,7 @@ def direction_excess(dirs, side):
 FILL_NONE = 0  # no receiver has a slot
 FILL_KEEP = 1  # pass 1: keep them (store row slot[i])
 FILL_GIVE = 2  # a later pass: give back part of what it removes (:func:`refill`)
+FILL_KEEP_IF = 3  # keep them where the receiver bins anyway (the ground plane's settling)
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -290,7 +291,7 @@ def settle_fill(dirs, store, row, mode):
     :func:`refill` back on each side."""
     if row < 0:
         return 0.0, 0.0
-    if mode == FILL_KEEP:
+    if mode == FILL_KEEP or mode == FILL_KEEP_IF:
         keep_bins(dirs, store, row)
         return 0.0, 0.0
     return refill(dirs, store, row, 0), refill(dirs, store, row, 1)
@@ -467,3 +468,57 @@ def disk_pair32(dx, dy, dz, r2, mx, my, mz, wa, a, nx, ny, nz, has_normal, measu
             s = np.sqrt(a / PI32 + r2)
             c = wa * g / (r * PI32 * s * (s + r))
     return c * max(e, ZERO32), c * max(-e, ZERO32)
+
+
+# the ground plane's share of the direction bins (aobake.ground), for the pass's settling
+PLANE_NODES = (-0.8611363115940526, -0.3399810435848563, 0.3399810435848563, 0.8611363115940526)
+PLANE_WEIGHTS = (0.3478548451374538, 0.6521451548625461, 0.6521451548625461, 0.3478548451374538)
+
+
+@njit(cache=True, error_model="numpy", parallel=True)
+def plane_bins(normals, cos_reach, axis, out):
+    """``out[i, k]``: cosine-weighted measure (over pi) of the directions in receiver i's
+    direction bin k that meet the ground plane: the cone -d.up >= cos_reach[i] about -up
+    (cos_reach 0: the lower half-space). Bin k < SECTORS is azimuth sector k (45 degrees
+    of the receiver's tangent frame, as :func:`sector_coords` splits it) of the upper
+    band (theta < 45 degrees), bin SECTORS + k the same sector near the horizon. Exact in
+    the polar angle (the cone meets a meridian in one arc), 4-point Gauss-Legendre per
+    sector in the azimuth. A zero normal: zeros."""
+    quarter = 0.25 * np.pi
+    half = 0.5 * np.pi
+    for i in prange(normals.shape[0]):
+        nx, ny, nz = normals[i, 0], normals[i, 1], normals[i, 2]
+        for k in range(2 * SECTORS):
+            out[i, k] = 0.0
+        if nx == 0.0 and ny == 0.0 and nz == 0.0:
+            continue
+        tx, ty, tz, bx, by, bz = tangent_frame(nx, ny, nz)
+        t_up = (tx, ty, tz)[axis]
+        b_up = (bx, by, bz)[axis]
+        c = -(nx, ny, nz)[axis]  # cos of the angle between the normal and -up
+        ca = cos_reach[i]
+        for k in range(SECTORS):
+            lo_b = 0.0
+            hi_b = 0.0
+            for g in range(4):
+                phi = quarter * (k + 0.5 + 0.5 * PLANE_NODES[g])
+                a = -(np.cos(phi) * t_up + np.sin(phi) * b_up)  # -u.up, u the azimuth direction
+                rr = np.sqrt(a * a + c * c)
+                if rr <= ca or rr == 0.0:
+                    continue
+                psi = np.arctan2(a, c)
+                delta = np.arccos(min(ca / rr, 1.0))
+                t0 = max(psi - delta, 0.0)
+                t1 = min(psi + delta, half)
+                w = 0.5 * PLANE_WEIGHTS[g]  # the sector's azimuth interval is 2 x 0.5 quarter wide
+                if t0 < min(t1, quarter):  # upper band
+                    s0 = np.sin(t0)
+                    s1 = np.sin(min(t1, quarter))
+                    hi_b += w * 0.5 * (s1 * s1 - s0 * s0)
+                if max(t0, quarter) < t1:  # band near the horizon
+                    s0 = np.sin(max(t0, quarter))
+                    s1 = np.sin(t1)
+                    lo_b += w * 0.5 * (s1 * s1 - s0 * s0)
+            # (1/pi) x the sector's width (pi/4) x the mean over the nodes
+            out[i, k] = hi_b * 0.25
+            out[i, SECTORS + k] = lo_b * 0.25

@@ -256,21 +256,22 @@ def component_keys(vertex_key, n_components):
 @njit(cache=True, nogil=True)
 def direct_samples(
     vertex_index, points, origins, normals, keys, kinds, params, j_lo, j_hi, reach,
-    pos, faces, tris, cdf, emission, lum_total, shorten, scale, tmax,
-    out_org, out_dir, out_far, out_w, out_row, out_comp, out_trace,
+    pos, faces, tris, cdf, emission, lum_total, shorten, scale, far_cap, sums, squares,
+    out_org, out_dir, out_far, out_w, out_row, out_comp,
 ):  # fmt: skip
-    """Shadow-ray samples of every light (and the emitters, component ``len(kinds)``) at
-    the chunk's vertices, vertex-major, then light, then sample.
+    """Shadow rays of every light (and the emitters, component ``len(kinds)``) at the
+    chunk's vertices, vertex-major, then light, then sample.
 
     ``points`` (n, 3) float64: the vertices (recentred), where the estimate is made;
     ``origins`` (n, 3) float32 in Embree's frame (``scale``: mesh units per frame unit);
     samples ``j_lo[c] .. j_hi[c] - 1`` of component c (none when equal); ``reach``
-    (n, L) codes. A
-    sample with w = 0 writes nothing; one of a light without shadows is written with
-    ``out_trace`` 0 (counted unoccluded). ``tmax``: the longest shadow ray (mesh units).
-    Returns the number of rows written.
+    (n, L) codes. A sample with w = 0 makes nothing; one of a light without shadows is
+    added to ``sums[a, c]`` (and its square to ``squares``) at once; the others are
+    written as rays (``out_far``: float32 lengths in Embree's frame, at most
+    ``far_cap``) for :func:`add_samples`. Returns the number of rays written.
     """
     n_lights = kinds.shape[0]
+    inv_scale = 1.0 / scale
     m = 0
     for a in range(vertex_index.shape[0]):
         v = vertex_index[a]
@@ -302,6 +303,14 @@ def direct_samples(
                     )
                 if not (wr > 0.0 or wg > 0.0 or wb > 0.0):
                     continue
+                if not shadow:
+                    sums[a, c, 0] += wr
+                    sums[a, c, 1] += wg
+                    sums[a, c, 2] += wb
+                    squares[a, c, 0] += wr * wr
+                    squares[a, c, 1] += wg * wg
+                    squares[a, c, 2] += wb * wb
+                    continue
                 if dist < np.inf:  # aim at the sampled point from the ray's origin
                     tx = ox + dist * dx - rx
                     ty = oy + dist * dy - ry
@@ -316,13 +325,12 @@ def direct_samples(
                 out_dir[m, 0] = dx
                 out_dir[m, 1] = dy
                 out_dir[m, 2] = dz
-                out_far[m] = min(dist, tmax)
+                out_far[m] = min(dist * inv_scale, far_cap)
                 out_w[m, 0] = wr
                 out_w[m, 1] = wg
                 out_w[m, 2] = wb
                 out_row[m] = a
                 out_comp[m] = c
-                out_trace[m] = 1 if shadow else 0
                 m += 1
     return m
 
@@ -341,12 +349,15 @@ def add_samples(ids, w, row, comp, m, sums, squares):
 
 
 @njit(cache=True, nogil=True)
-def bounce_directions(path_org, path_normal, alive, keys, vertex_of, index_of, depth, out_dir):
-    """Cosine-weighted directions about each live path's normal; path p is sample
+def bounce_directions(path_org, path_normal, alive, keys, vertex_of, index_of, depth, inv_scale, out_live, out_org, out_dir):
+    """Rays of the live paths, compacted: ``out_live[r]`` the path, its origin (float32,
+    Embree's frame) and a cosine-weighted direction about its normal. Path p is sample
     ``index_of[p]`` of vertex ``vertex_of[p]`` at ``depth``. The first direction is a
     scrambled Sobol point; later ones and the samples at hits are independent hashes:
     two Owen-scrambled copies of one sequence indexed alike are correlated, and a path
-    multiplies them (measured: a bias of ~20% on the box's indirect light)."""
+    multiplies them (measured: a bias of ~20% on the box's indirect light). Returns
+    the number of rays."""
+    m = 0
     for p in range(alive.shape[0]):
         if not alive[p]:
             continue
@@ -358,24 +369,29 @@ def bounce_directions(path_org, path_normal, alive, keys, vertex_of, index_of, d
             u0, u1 = rng.random2(index_of[p], key)
         x, y, z = warps.square_to_cosine_hemisphere(u0, u1)
         dx, dy, dz = warps.to_world(x, y, z, path_normal[p, 0], path_normal[p, 1], path_normal[p, 2])
-        out_dir[p, 0] = dx
-        out_dir[p, 1] = dy
-        out_dir[p, 2] = dz
+        out_live[m] = p
+        out_org[m, 0] = path_org[p, 0] * inv_scale
+        out_org[m, 1] = path_org[p, 1] * inv_scale
+        out_org[m, 2] = path_org[p, 2] * inv_scale
+        out_dir[m, 0] = dx
+        out_dir[m, 1] = dy
+        out_dir[m, 2] = dz
+        m += 1
+    return m
 
 
 @njit(cache=True, nogil=True)
 def follow_hits(
-    live, prim, tfar, dirs, path_org, path_normal, throughput, value, alive,
+    live, m, prim, org, dirs, scale, points, faces, path_org, path_normal, throughput, value, alive,
     face_normals, face_albedo, dome, offset, continue_paths,
 ):  # fmt: skip
-    """After tracing the live paths ``live`` (their rows in ``prim``/``tfar``/``dirs``):
-    an escaping path adds throughput x pi L_dome to ``value`` and ends; a hit moves the
-    path to the hit point (offset along the face normal turned to face the ray), takes
-    the face's albedo into the throughput and ends where that is zero or
-    ``continue_paths`` is False."""
-    for r in range(live.shape[0]):
+    """After tracing rays 0..m-1 of the live paths ``live`` (first hits ``prim``): an
+    escaping path adds throughput x pi L_dome to ``value`` and ends; a hit moves the
+    path to the hit point (the ray met with the face's plane in float64, offset along
+    the face normal turned to face the ray), takes the face's albedo into the
+    throughput and ends where that is zero or ``continue_paths`` is False."""
+    for r in range(m):
         p = live[r]
-        dx, dy, dz = np.float64(dirs[r, 0]), np.float64(dirs[r, 1]), np.float64(dirs[r, 2])
         f = prim[r]
         if f < 0:
             for k in range(3):
@@ -383,16 +399,23 @@ def follow_hits(
             alive[p] = False
             continue
         gx, gy, gz = face_normals[f, 0], face_normals[f, 1], face_normals[f, 2]
-        if not continue_paths or (gx == 0.0 and gy == 0.0 and gz == 0.0):
+        dx, dy, dz = np.float64(dirs[r, 0]), np.float64(dirs[r, 1]), np.float64(dirs[r, 2])
+        along = _dot(gx, gy, gz, dx, dy, dz)
+        if not continue_paths or along == 0.0:
             alive[p] = False
             continue
-        if _dot(gx, gy, gz, dx, dy, dz) > 0.0:
+        ox = np.float64(org[r, 0]) * scale
+        oy = np.float64(org[r, 1]) * scale
+        oz = np.float64(org[r, 2]) * scale
+        v0 = faces[f, 0]
+        t = _dot(points[v0, 0] - ox, points[v0, 1] - oy, points[v0, 2] - oz, gx, gy, gz) / along
+        if along > 0.0:
             gx, gy, gz = -gx, -gy, -gz
-        t = tfar[r]
+        t = max(t, 0.0)
         e = offset[f]
-        path_org[p, 0] += t * dx + e * gx
-        path_org[p, 1] += t * dy + e * gy
-        path_org[p, 2] += t * dz + e * gz
+        path_org[p, 0] = ox + t * dx + e * gx
+        path_org[p, 1] = oy + t * dy + e * gy
+        path_org[p, 2] = oz + t * dz + e * gz
         path_normal[p, 0] = gx
         path_normal[p, 1] = gy
         path_normal[p, 2] = gz
@@ -408,13 +431,14 @@ def follow_hits(
 @njit(cache=True, nogil=True)
 def hit_samples(
     alive, path_org, path_normal, throughput, keys, vertex_of, index_of, depth,
-    kinds, params, has_emitters, pos, faces, tris, cdf, emission, lum_total, shorten, inv_scale, tmax,
-    out_org, out_dir, out_far, out_w, out_row, out_trace,
+    kinds, params, has_emitters, pos, faces, tris, cdf, emission, lum_total, shorten, inv_scale, far_cap,
+    value, out_org, out_dir, out_far, out_w, out_row,
 ):  # fmt: skip
     """Next-event estimation at every live path's hit point: one sample per light (the
     dome excluded: escaping paths see it) and one of the emitters, weighted by the
-    path's throughput. Rows as in :func:`direct_samples` (``out_row`` = path); returns
-    the number written."""
+    path's throughput. A light without shadows adds to ``value`` at once; the others
+    are written as rays as in :func:`direct_samples` (``out_row`` = path). Returns the
+    number of rays."""
     n_lights = kinds.shape[0]
     m = 0
     for p in range(alive.shape[0]):
@@ -428,8 +452,10 @@ def hit_samples(
                 kind = kinds[c]
                 if kind == DOME and params[c, P_SHADOW] > 0.0:
                     continue
-                if reach_code(kind, params[c], ox, oy, oz, nx, ny, nz) != REACH_OK:
-                    continue
+                if kind != DISTANT and kind != DOME:  # the range; the rest makes w = 0
+                    tx, ty, tz = params[c, P_POS] - ox, params[c, P_POS + 1] - oy, params[c, P_POS + 2] - oz
+                    if not tx * tx + ty * ty + tz * tz < params[c, P_RANGE] * params[c, P_RANGE]:
+                        continue
                 shadow = params[c, P_SHADOW] > 0.0
             elif not has_emitters:
                 continue
@@ -447,18 +473,22 @@ def hit_samples(
             wb *= throughput[p, 2]
             if not (wr > 0.0 or wg > 0.0 or wb > 0.0):
                 continue
+            if not shadow:
+                value[p, 0] += wr
+                value[p, 1] += wg
+                value[p, 2] += wb
+                continue
             out_org[m, 0] = ox * inv_scale
             out_org[m, 1] = oy * inv_scale
             out_org[m, 2] = oz * inv_scale
             out_dir[m, 0] = dx
             out_dir[m, 1] = dy
             out_dir[m, 2] = dz
-            out_far[m] = min(dist, tmax)
+            out_far[m] = min(dist * inv_scale, far_cap)
             out_w[m, 0] = wr
             out_w[m, 1] = wg
             out_w[m, 2] = wb
             out_row[m] = p
-            out_trace[m] = 1 if shadow else 0
             m += 1
     return m
 

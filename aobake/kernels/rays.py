@@ -88,6 +88,25 @@ def count_hits(ids, per, vertex_index, hits):
         hits[vertex_index[a]] += c
 
 
+@njit(cache=True, nogil=True)
+def ground_rays(org, dirs, axis, height, reach, hit):
+    """``hit[r] = 1`` for the rays that meet the ground plane ``x[axis] = height`` within
+    ``reach`` (inf: unbounded): those going down whose origin, clamped to the plane (an
+    origin offset below it starts on it), is less than ``reach * -dir[axis]`` above it;
+    else 0. One test per ray (``org``, ``height``, ``reach`` in Embree's frame, where the
+    mesh lies within [-1, 1]^3). A hit ray's origin moves to ``3 dir``, outside that box
+    and going away from it, so that Embree rejects it at its root box instead of
+    traversing the mesh for an answer the plane already gave."""
+    for r in range(hit.shape[0]):
+        down = -np.float64(dirs[r, axis])
+        if down > 0.0 and max(np.float64(org[r, axis]) - height, 0.0) < reach * down:
+            hit[r] = 1
+            for k in range(3):
+                org[r, k] = np.float32(3.0) * dirs[r, k]
+        else:
+            hit[r] = 0
+
+
 #: Fixed-point scale of the escaping-direction sums: integer sums are exact in any
 #: order (bit-identical for any thread count), and 2**32 rays of 2**30 fit in int64.
 ESCAPE_SCALE = 2.0**30

@@ -59,7 +59,7 @@ class Fill(NamedTuple):
     store: np.ndarray
     #: (n,) int64 receiver's row of ``store`` (-1: none)
     slot: np.ndarray
-    #: ``bunnell.FILL_NONE`` / ``FILL_KEEP`` / ``FILL_GIVE``
+    #: ``bunnell.FILL_NONE`` / ``FILL_KEEP`` / ``FILL_GIVE`` / ``FILL_KEEP_IF``
     mode: int
 
 

@@ -19,6 +19,7 @@ from numba import njit, prange
 from aobake.constants import FASTMATH, MEASURE_COSINE
 
 from .bunnell import (
+    FILL_KEEP_IF,
     SECTORS,
     ZERO32,
     add_directions,
@@ -218,7 +219,8 @@ def _tree_pass(tree, emitters, receivers, near_field, buckets, span, options, ou
                     acc[0, last] = np.float64(f1) + np.float64(f2)
                     acc[1, last] = np.float64(b1_) + np.float64(b2)
                 row = slot[i]  # >= 0: keeps or reads its bins
-                if can_bin and not binning and (max(acc[0, last], acc[1, last]) > cap or row >= 0):
+                keeps = row >= 0 and fill_mode != FILL_KEEP_IF  # FILL_KEEP_IF keeps, never forces
+                if can_bin and not binning and (max(acc[0, last], acc[1, last]) > cap or keeps):
                     binning = True
                     direction_sums(nb, n_near, fb, n_far, px32, py32, pz32, nx32, ny32, nz32, frame,
                                    max_d2, np.float32(min_d2), wr2, leveled, gate_, dirs)

@@ -20,6 +20,10 @@ METHODS = ("embree", "bunnell")
 #: cluster tree couple every vertex.
 SPLITTABLE = ("embree",)
 
+#: Methods that compute a lit scene's light (direct and bounced) besides AO:
+#: ``run_light(surface, shading, options, progress, indirect=...)``.
+LIGHTING = ("embree",)
+
 
 @dataclass(frozen=True)
 class MethodResult:
@@ -63,18 +67,32 @@ def make_options(name: str, options=None, **changes):
     return build(options_class(name), options, **changes)
 
 
-def run(name: str, surface, options=None, progress=None, *, vertices=None, **changes) -> MethodResult:
+def run(name: str, surface, options=None, progress=None, *, vertices=None, ground=None, **changes) -> MethodResult:
     """Bake ``surface`` with method ``name``; ``options`` as :func:`make_options` takes them.
 
     ``vertices=(lo, hi)``: bake only those vertices (methods in :data:`SPLITTABLE`);
-    the result then holds hi - lo values."""
+    the result then holds hi - lo values. ``ground``: an :class:`aobake.ground.Ground`
+    every method counts as one more occluder (None: none)."""
     from ..mesh import check_extent
 
     opts = make_options(name, options, **changes)
     check_extent(surface.positions, surface.source)  # every vertex at one point: no AO
     module = importlib.import_module(f"{__name__}.{name}")
+    extra = {} if ground is None else {"ground": ground}
     if vertices is None:
-        return module.run(surface, opts, progress)
+        return module.run(surface, opts, progress, **extra)
     if name not in SPLITTABLE:
         raise ValueError(f"{name} couples all vertices and cannot bake a vertex range")
-    return module.run(surface, opts, progress, vertices=vertices)
+    return module.run(surface, opts, progress, vertices=vertices, **extra)
+
+
+def run_light(name: str, surface, shading, options=None, progress=None, *, indirect: bool = True, **changes):
+    """Irradiance of ``surface`` lit by ``shading`` (:class:`aobake.shading.Shading`) with
+    method ``name`` (one of :data:`LIGHTING`): its ``LightResult`` (``direct``,
+    ``indirect``, ``error`` (n, 3), ray counts, per-light statistics). ``indirect=False``:
+    direct light only, whatever the options' ``bounces``."""
+    opts = make_options(name, options, **changes)
+    if name not in LIGHTING:
+        raise ValueError(f"--method {name} computes ambient occlusion only; light needs --method {LIGHTING[0]}")
+    module = importlib.import_module(f"{__name__}.{name}")
+    return module.run_light(surface, shading, opts, progress, indirect=indirect)

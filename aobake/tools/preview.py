@@ -1,4 +1,4 @@
-"""Preview images of a bake: the AO as grey, rendered on the CPU, written as PNG.
+"""Preview images of a bake: the AO as grey (or the vertex colours), rendered on the CPU, written as PNG.
 
 Arrays in, PNG bytes out (zlib from the standard library: no imaging dependency).
 Camera: perspective, looking at the bounding-box centre from an azimuth/elevation about
@@ -107,22 +107,31 @@ def _band_renderer(positions, faces, values, size, up, view, azimuth, elevation)
 def preview_png(positions, faces, values, *, size: int = 640, band_rows: int = BAND_ROWS, **view) -> bytes:
     """PNG bytes of :func:`grey` (:func:`render_values`) rendered ``band_rows`` rows at a
     time: the same file as ``png_bytes(grey(render_values(...)))``, in bounded memory.
+    ``values``: (n,) AO, or (n, 3) linear RGB drawn by :func:`colour` (sRGB-encoded).
     ``view``: ``up``, ``view``, ``azimuth``, ``elevation`` as for :func:`render_values`."""
-    draw = _band_renderer(
-        positions,
-        faces,
-        values,
-        size,
-        view.get("up", "Y"),
-        view.get("view", "iso"),
-        view.get("azimuth"),
-        view.get("elevation"),
-    )
+    values = np.asarray(values, dtype=np.float64)
+    channels = [values] if values.ndim == 1 else [values[:, c] for c in range(3)]
+    draws = [
+        _band_renderer(
+            positions,
+            faces,
+            v,
+            size,
+            view.get("up", "Y"),
+            view.get("view", "iso"),
+            view.get("azimuth"),
+            view.get("elevation"),
+        )
+        for v in channels
+    ]
     deflate = zlib.compressobj(6)
     parts = []
     for row0 in range(0, size, band_rows):
         rows = min(band_rows, size - row0)
-        pixels = _pixels(grey(draw(row0, rows)))
+        if values.ndim == 1:
+            pixels = _pixels(grey(draws[0](row0, rows)))
+        else:
+            pixels = _pixels(colour(np.stack([d(row0, rows) for d in draws], axis=-1)))
         filtered = np.concatenate([np.zeros((rows, 1), dtype=np.uint8), pixels.reshape(rows, -1)], axis=1)
         parts.append(deflate.compress(filtered.tobytes()))
     parts.append(deflate.flush())
@@ -133,6 +142,18 @@ def grey(image) -> np.ndarray:
     """(h, w, 3) RGB of an AO image (NaN background drawn light grey)."""
     g = np.where(np.isnan(image), BACKGROUND, np.clip(image, 0.0, 1.0))
     return np.repeat(g[..., None], 3, axis=2)
+
+
+def colour(image) -> np.ndarray:
+    """(h, w, 3) sRGB-encoded pixels of a linear RGB image (NaN background light grey),
+    so the PNG shows the colours a viewer shows on the mesh."""
+    from ..io.color import linear_to_srgb
+
+    image = np.asarray(image, dtype=np.float64)
+    background = np.isnan(image).any(axis=-1)
+    out = linear_to_srgb(np.nan_to_num(image))
+    out[background] = BACKGROUND
+    return out
 
 
 def png_bytes(image) -> bytes:

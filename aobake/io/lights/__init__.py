@@ -31,6 +31,7 @@ def read_shading(
     *,
     scene_lights: bool = True,
     cli_lights: Iterable[Light | str] = (),
+    dark_materials: bool = True,
 ) -> Shading:
     """The lights, albedo and emission of ``surface``, read from ``path``.
 
@@ -48,6 +49,10 @@ def read_shading(
     cli_lights : iterable of Light or str
         ``--light`` values (strings are parsed, named ``--light 1``, ``--light 2``...),
         appended after the file's lights.
+    dark_materials : bool
+        False: skip a USD scene's materials when nothing lights it (no light, no
+        emissive material, no ``cli_lights``); its albedo is then the default. A bake
+        of such a scene computes AO only and needs none of it.
 
     Returns
     -------
@@ -64,13 +69,14 @@ def read_shading(
         A bad ``--light`` string.
     """
     path = Path(path)
+    cli_lights = tuple(cli_lights)
     reading = Reading(surface, path)
     fmt = surface.metadata.get("format")
     try:
         if fmt == "USD":
             from .usdlux import read_usd
 
-            read_usd(reading, scene_lights=scene_lights)
+            read_usd(reading, scene_lights=scene_lights, extra_lights=bool(cli_lights) or dark_materials)
         elif fmt == "glTF":
             from .punctual import read_gltf
 
@@ -79,7 +85,7 @@ def read_shading(
             from .mtl import read_obj
 
             read_obj(reading)
-        elif fmt == "PLY":
+        elif fmt == "PLY" and (cli_lights or dark_materials):  # a PLY has no lights, emits nothing
             from .mtl import read_ply_colours
 
             read_ply_colours(reading)

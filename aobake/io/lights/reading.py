@@ -64,6 +64,9 @@ class Reading:
         on_face[faces.reshape(-1)] = True
         out = {}
         for which, fill in (("albedo", DEFAULT_ALBEDO), ("emission", 0.0)):
+            if not getattr(self, f"{which}_from"):  # nothing read: every vertex has the default
+                out[which] = np.full((n, 3), fill)
+                continue
             vertex = getattr(self, f"vertex_{which}").copy()
             missing = np.isnan(vertex).any(axis=1)
             if missing.any():

@@ -9,6 +9,8 @@ surface's time code. ``pxr`` is imported inside the functions only.
 from __future__ import annotations
 
 import math
+import warnings
+from pathlib import Path
 
 import numpy as np
 
@@ -27,23 +29,46 @@ IGNORED_TYPES = ("PortalLight",)
 SHAPE_TOLERANCE = 1e-6
 
 
-def read_usd(reading: Reading, *, scene_lights: bool) -> None:
-    """Fill ``reading`` from the USD stage the surface was read from."""
-    from pxr import Usd
+def read_usd(reading: Reading, *, scene_lights: bool, extra_lights: bool = False) -> None:
+    """Fill ``reading`` from the USD stage the surface was read from. The materials are
+    read only where something may light the scene (its lights, an emissive material, or
+    ``extra_lights``: lights given apart, ``--light``)."""
+    from pxr import Sdf, Usd
+
+    from ..usd import _open_fresh
 
     surface = reading.surface
     source = surface.metadata.get("path") or str(reading.path)
-    with foreign_stderr(reading.path.name):
-        stage = Usd.Stage.Open(str(source))
+    # the mesh reader opened this stage first and reported what USD printed then; opened
+    # as it did (fresh from disk when a stale layer is registered), so both read one file
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        with foreign_stderr(reading.path.name):
+            stage = _open_fresh(Path(source), Sdf, Usd)
     if stage is None:
         raise InputError(reading.path, "cannot read as USD: the stage did not open")
     time = surface.metadata.get("time")
     code = Usd.TimeCode.Default() if time is None else Usd.TimeCode(time)
     with foreign_stderr(reading.path.name):
         emissive_meshes = _read_lights(reading, stage, code) if scene_lights else set()
+        if not (reading.lights or emissive_meshes or extra_lights or _may_emit(stage)):
+            return  # nothing lights the scene: its AO is all a bake computes, skip the materials
         for part in surface.parts:
             if part.prim_path is not None:
                 _read_part_colours(reading, stage, part, code, emissive_meshes)
+
+
+def _may_emit(stage) -> bool:
+    """Whether some UsdPreviewSurface of the stage authors ``emissiveColor`` (a value or a
+    connection): one pass over the prims, far cheaper than resolving every binding."""
+    from pxr import Usd, UsdShade
+
+    for prim in stage.Traverse(Usd.TraverseInstanceProxies()):
+        if prim.IsA(UsdShade.Shader):
+            attr = prim.GetAttribute("inputs:emissiveColor")
+            if attr and (attr.HasAuthoredValue() or attr.HasAuthoredConnections()):
+                return True
+    return False
 
 
 # -- lights -------------------------------------------------------------------------------

@@ -7,6 +7,7 @@ import numpy as np
 
 from ..._types import AOArray
 from ...checks import check_result
+from ...ground import Ground, plane_occlusion, reach_cosines
 from ...mesh import Surface
 from ...options import build
 from ...progress import Progress
@@ -24,6 +25,7 @@ def bunnell_ao(
     *,
     tree: ClusterTree | None = None,
     progress: Progress | None = None,
+    ground: Ground | None = None,
     **changes,
 ) -> AOArray:
     """Per-vertex ambient accessibility from summed form factors (no rays).
@@ -57,6 +59,10 @@ def bunnell_ao(
         changed. A tree whose clusters the motion has scrambled is only slower.
     progress : Progress or None, optional
         Advanced per chunk of receivers over all passes.
+    ground : aobake.ground.Ground, optional
+        An infinite occluding plane: its exact occlusion, cosine-weighted over the cone
+        within ``max_distance`` and clipped to the receiver's hemisphere, joins the sums
+        bin by bin (:func:`aobake.methods.bunnell.passes.occlusion_passes`).
 
     Returns
     -------
@@ -79,12 +85,14 @@ def bunnell_ao(
     occluded fraction of the full sphere. Coordinates are recentred and normalised in
     float64 before the float32 kernels: the method is scale and translation invariant.
     """
-    return estimate(surface, build(BunnellOptions, options, **changes), progress, tree=tree)
+    return estimate(surface, build(BunnellOptions, options, **changes), progress, tree=tree, ground=ground)
 
 
-def run(surface: Surface, options: BunnellOptions, progress: Progress | None = None) -> MethodResult:
+def run(
+    surface: Surface, options: BunnellOptions, progress: Progress | None = None, ground: Ground | None = None
+) -> MethodResult:
     """The method interface (:mod:`aobake.methods`)."""
-    return MethodResult(estimate(surface, options, progress))
+    return MethodResult(estimate(surface, options, progress, ground=ground))
 
 
 def estimate(
@@ -95,6 +103,7 @@ def estimate(
     scheme: Scheme | None = None,
     exact: bool = False,
     tree: ClusterTree | None = None,
+    ground: Ground | None = None,
 ) -> AOArray:
     """:func:`bunnell_ao` with the knobs tests and the bench turn: ``scheme`` (the published
     pass schemes and variants, :class:`Scheme`) and ``exact=True`` (every disk summed,
@@ -109,7 +118,15 @@ def estimate(
             tree = refit_tree(given, elements.positions, elements.areas)
         else:
             tree = build_tree(elements, leaf_size=scheme.leaf_size)
-    occlusion = occlusion_passes(elements, tree, options, scheme, progress=progress)
+    plane = None
+    if ground is not None:
+        heights = ground.heights(surface.positions)
+        plane = (
+            ground.axis,
+            reach_cosines(heights, options.max_distance),
+            plane_occlusion(heights, elements.normals, ground.axis, options.measure, options.max_distance),
+        )
+    occlusion = occlusion_passes(elements, tree, options, scheme, progress=progress, plane=plane)
     ao = combine_passes(occlusion, scheme.combine)
     check_result(ao, "ao", lower=0.0, upper=1.0, method="bunnell")
     return ao

@@ -323,6 +323,7 @@ def occlusion_passes(
     scheme: Scheme | None = None,
     *,
     progress: Progress | None = None,
+    plane: tuple | None = None,
 ) -> FloatArray:
     """Saturated occlusion of every pass, ``A_k = clip(combine_sides(sums_k), 0, 1)``.
 
@@ -347,6 +348,13 @@ def occlusion_passes(
         in proportion to how empty pass 1 left it (``kernels.bunnell.refill``).
     scheme : Scheme, optional
     progress : Progress or None
+    plane : (axis, cos_reach, total) or None
+        The ground plane (:mod:`aobake.ground`): its up axis, per receiver the cosine
+        of the cone in which it is within reach, and its exact occlusion. It joins each
+        side's sum like one more term: a binned receiver gets its share of every
+        direction bin of pass 1 (:func:`aobake.kernels.bunnell.plane_bins`), capped with
+        what the disks put there (directions the mesh already blocks count once); the
+        others get ``total``. The plane itself is never in shadow (weight 1 in every pass).
 
     Returns
     -------
@@ -361,10 +369,12 @@ def occlusion_passes(
     progress = NullProgress() if progress is None else progress
     n = elements.n_vertices
     occlusion = np.zeros((passes, n))
-    if elements.n_emitters == 0:  # nothing casts: every vertex is open
+    if elements.n_emitters == 0:  # nothing casts: every vertex is open (but for the plane)
         progress.start(passes * n, "bunnell")
         progress.advance(passes * n)
         progress.finish()
+        if plane is not None:
+            occlusion[:] = np.clip(plane[2], 0.0, 1.0)
         return occlusion
     # the blends read the second-to-last pass at every vertex
     share = scheme.share_passes and scheme.combine == "last" and tree is not None and passes > 1
@@ -383,11 +393,23 @@ def occlusion_passes(
         keepers = evaluated if share else np.arange(n)
         fill = scheme.pass_fill and options.directional and passes > 1
         fills = _fills(n, keepers) if fill else (None, None)
+        binned_plane = plane is not None and options.directional and code == MEASURE_CODES["cosine"]
+        if binned_plane:  # receivers keep their pass-1 bins for the plane's share
+            keep, give = _fills(n, np.arange(n))
+            if fill:  # later passes read every receiver's bins: all bin
+                fills = (keep, give)
+            else:  # only those that bin anyway (the others: rows left NaN)
+                keep.store[:] = np.nan
+                fills = (keep._replace(mode=_k.FILL_KEEP_IF), None)
+        settle = None
+        if plane is not None:
+            def settle(sums_total):
+                return _with_plane(sums_total, plane, fills[0] if binned_plane else None, job.elements)
         if share:
             _shared_passes(job, occlusion, rep_of, evaluated, passes, sides, damping, fills,
-                           progress)
+                           progress, settle)
         else:
-            _all_passes(job, occlusion, passes, sides, damping, fills, progress)
+            _all_passes(job, occlusion, passes, sides, damping, fills, progress, settle)
     progress.finish()
     return occlusion
 
@@ -401,9 +423,55 @@ def _weights_from(sums: FloatArray, sides: str, damping: float) -> FloatArray:
     return weights
 
 
-def _all_passes(job, occlusion, passes, sides, damping, fills, progress) -> None:
+def _with_plane(total: FloatArray, plane, keep, elements: DiskElements) -> FloatArray:
+    """(n, 2) side totals with the ground plane added.
+
+    A receiver that binned (``keep``: the kernels' store of pass 1, a row per receiver,
+    NaN where it did not bin) gets, per side, what the plane adds to its direction bins
+    beyond what the disks put there, ``sum_k max(v_k, p_k) - v_k`` (v capped at the bin's
+    measure, p the plane's share of the bin), less what the sums hold unbinned (near-field
+    cells, wide terms): whatever stands between a receiver and the plane is in front of
+    it, in its directions, so the mesh's occlusion is taken to lie in the plane's part of
+    a bin first (on a sphere resting on a floor at the plane that is exact; counting both
+    was 0.035 RMSE against rays, this 0.002). A receiver that did not bin (its sums are
+    below one bin's measure) gets ``P (1 - T)``, T its side's sum, P the plane's
+    occlusion (bunny: 0.0069 against 0.0090 for ``max(P - T, 0)`` and 0.0067 when every
+    receiver bins, at a third of the extra time); one without a normal (or not binning
+    at all: ``--no-directional``, the uniform measure) the same ``P (1 - T)`` (bunny,
+    uniform measure: 0.0325 against 0.0634 for P and 0.0752 for ``max(P - T, 0)``)."""
+    axis, cos_reach, plane_total = plane
+    # no bins to settle in: where the sums' occlusion lies is unknown, taken independent
+    # of the plane's directions
+    out = total + np.asarray(plane_total)[:, None] * (1.0 - np.minimum(total, 1.0))
+    if keep is None:
+        return out
+    normals = np.ascontiguousarray(elements.normals, dtype=np.float64)
+    has_normal = np.any(normals != 0.0, axis=1)
+    plane_total = np.asarray(plane_total, dtype=np.float64)
+    rows = keep.store[keep.slot]  # (n, 2, 2 SECTORS): pass 1's bins, both sides
+    binned_rows = has_normal & ~np.isnan(rows[:, 0, 0])
+    # a receiver whose sums stayed below one bin (it did not bin) keeps P (1 - T)
+    idx = np.flatnonzero(binned_rows & (plane_total > 0.0))
+    if idx.size == 0:
+        return out
+    share = np.zeros((idx.size, 2 * _k.SECTORS))
+    _k.plane_bins(normals[idx], np.ascontiguousarray(cos_reach[idx], dtype=np.float64), int(axis), share)
+    sums = share.sum(axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):  # the exact total, split as the bins say
+        scale = np.where(sums > 0.0, plane_total[idx] / sums, 0.0)
+    cap = 0.5 / _k.SECTORS
+    share = np.minimum(share * scale[:, None], cap)
+    bins = np.clip(rows[idx], 0.0, cap)
+    gained = (np.maximum(bins, share[:, None, :]) - bins).sum(axis=2)
+    gained = np.maximum(gained - np.maximum(total[idx] - bins.sum(axis=2), 0.0), 0.0)
+    out[idx] = total[idx] + gained
+    return out
+
+
+def _all_passes(job, occlusion, passes, sides, damping, fills, progress, settle=None) -> None:
     """Every pass at every vertex (the exact sum's and the reference's way); ``fills``:
-    the kernels' ``fill`` for pass 1 and for the later passes (:func:`_fills`)."""
+    the kernels' ``fill`` for pass 1 and for the later passes (:func:`_fills`);
+    ``settle``: what adds the ground plane to a pass's (n, 2) totals (None: no plane)."""
     n = occlusion.shape[1]
     weights = np.ones((n, _k.N_LEVELS))
     cell_weights = np.ones(n)
@@ -417,13 +485,18 @@ def _all_passes(job, occlusion, passes, sides, damping, fills, progress) -> None
         _check_sums(sums, "unsaturated occlusion sum", lower=0.0, upper=np.inf)
         if binned and k == 0:
             occluders = occluder_centroids(job.elements, first)
-        occlusion[k] = np.clip(combine_sides(sums[:, :, -1], sides), 0.0, 1.0)
+        total = sums[:, :, -1]
+        if settle is not None:
+            if k == 0:
+                added = settle(total) - total  # settled against pass 1's bins, for every pass
+            total = total + added
+        occlusion[k] = np.clip(combine_sides(total, sides), 0.0, 1.0)
         if binned:
             weights = _weights_from(sums, sides, damping)
 
 
 def _shared_passes(job, occlusion, rep_of, evaluated, passes, sides, damping, fills,
-                   progress) -> None:
+                   progress, settle=None) -> None:
     """Pass 1 at every vertex (split by distance: every vertex's own weights); passes
     2..K at the representatives only, walking the tree from the same buckets as pass 1
     (so pass 1 and pass k share their tree approximations there), carried to the
@@ -437,7 +510,10 @@ def _shared_passes(job, occlusion, rep_of, evaluated, passes, sides, damping, fi
     first_sums, first = job.sums(np.ones((n, _k.N_LEVELS)), progress, ones, True, 0, fill=fills[0])
     _check_sums(first_sums, "unsaturated occlusion sum", lower=0.0, upper=np.inf)
     base = first_sums[:, :, -1]
-    occlusion[0] = np.clip(combine_sides(base, sides), 0.0, 1.0)
+    # the plane joins every pass's totals as pass 1 settled it (what later passes drop is
+    # the disks' alone)
+    added = 0.0 if settle is None else settle(base) - base
+    occlusion[0] = np.clip(combine_sides(base + added, sides), 0.0, 1.0)
     # every vertex's own weights: occlusion within a few edge lengths (the first bins)
     # changes too fast to share (a contact vertex's leaf-mates are open)
     occluders = occluder_centroids(job.elements, first)
@@ -451,7 +527,7 @@ def _shared_passes(job, occlusion, rep_of, evaluated, passes, sides, damping, fi
         _check_sums(sums, "unsaturated occlusion sum", lower=0.0, upper=np.inf)
         shared = sums[rep_of]
         drop = np.maximum(base_rep - shared[:, :, -1], 0.0)  # never above pass 1
-        occlusion[k] = np.clip(combine_sides(np.maximum(base - drop, 0.0), sides), 0.0, 1.0)
+        occlusion[k] = np.clip(combine_sides(np.maximum(base - drop, 0.0) + added, sides), 0.0, 1.0)
         if binned:  # passes >= 3: the representatives' weights
             weights = _weights_from(shared, sides, damping)
 

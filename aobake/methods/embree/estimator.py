@@ -20,6 +20,7 @@ from ..._types import AOArray, IndexArray
 from ...constants import ADAPTIVE_FIRST_ROUND, CHUNK_RAYS, MEASURE_CODES, Z95
 from ...contacts import contact_origins, ray_offsets
 from ...errors import NumericalError
+from ...ground import Ground
 from ...kernels import rays as _k
 from ...kernels import topology as _topo
 from ...mesh import Surface
@@ -125,7 +126,12 @@ def stratified_half_width(hits: np.ndarray, first_half_hits: np.ndarray, n: int)
 
 
 def embree_ao(
-    surface: Surface, options: EmbreeOptions | None = None, *, progress: Progress | None = None, **changes
+    surface: Surface,
+    options: EmbreeOptions | None = None,
+    *,
+    progress: Progress | None = None,
+    ground: Ground | None = None,
+    **changes,
 ) -> EmbreeAO:
     """Per-vertex ambient occlusion by Monte Carlo ray casting (the reference).
 
@@ -138,6 +144,9 @@ def embree_ao(
         ``threads`` (see :class:`EmbreeOptions`); keywords override them:
         ``embree_ao(surface, n_rays=64)``.
     progress : Progress, optional
+    ground : aobake.ground.Ground, optional
+        An infinite occluding plane (:mod:`aobake.ground`): one analytic test per ray,
+        no triangles added.
 
     Returns
     -------
@@ -154,7 +163,7 @@ def embree_ao(
     thread count and chunk size. With ``tolerance``, rays are cast in rounds that end on
     powers of two and a vertex stops once :func:`stratified_half_width` is below it.
     """
-    return estimate(surface, build(EmbreeOptions, options, **changes), progress)
+    return estimate(surface, build(EmbreeOptions, options, **changes), progress, ground=ground)
 
 
 def run(
@@ -162,9 +171,10 @@ def run(
     options: EmbreeOptions,
     progress: Progress | None = None,
     vertices: tuple[int, int] | None = None,
+    ground: Ground | None = None,
 ) -> MethodResult:
-    """The method interface (:mod:`aobake.methods`); ``vertices``: see :func:`estimate`."""
-    result = estimate(surface, options, progress, vertices=vertices)
+    """The method interface (:mod:`aobake.methods`); ``vertices``, ``ground``: see :func:`estimate`."""
+    result = estimate(surface, options, progress, vertices=vertices, ground=ground)
     extra = {} if result.bent_normals is None else {"bentNormal": result.bent_normals}
     return MethodResult(result.ao, result.n_rays, result.contacts, extra)
 
@@ -178,6 +188,7 @@ def estimate(
     stratified: bool = True,
     contact_fix: bool = True,
     vertices: tuple[int, int] | None = None,
+    ground: Ground | None = None,
 ) -> EmbreeAO:
     """:func:`embree_ao` with the knobs tests and the bench turn: ``chunk_rays`` rays per
     Embree call at most (memory; no effect on the result), ``stratified=False`` plain
@@ -187,7 +198,10 @@ def estimate(
     ``vertices=(lo, hi)``: trace only vertices lo..hi-1 against the whole scene and
     return their results alone (``ao`` and ``rays`` of length hi - lo). Every ray is a
     pure function of (seed, vertex, sample), so the pieces of a mesh, concatenated,
-    equal the whole bake bit for bit (``aobake batch --split``)."""
+    equal the whole bake bit for bit (``aobake batch --split``).
+
+    ``ground``: a ray also counts as a hit where it meets the plane within its reach
+    (:func:`aobake.kernels.rays.ground_rays`); without it the result is unchanged."""
     t0 = time.perf_counter()
     n_rays = options.n_rays
     threads = max(1, int(options.threads or os.cpu_count() or 1))
@@ -209,6 +223,10 @@ def estimate(
     mode = MEASURE_CODES[options.measure] + (0 if stratified else 2)
     tfar = None if options.max_distance is None else float(options.max_distance)
     tolerance = options.tolerance
+    if ground is not None:  # the plane in Embree's frame (recentred, divided by the scale)
+        g_axis = int(ground.axis)
+        g_height = (float(ground.height) - float(tracer.center[g_axis])) / tracer.scale
+        g_reach = math.inf if tfar is None else tfar / tracer.scale
 
     hits = np.zeros(n, dtype=np.int64)
     cast = np.zeros(n, dtype=np.int64)
@@ -225,7 +243,12 @@ def estimate(
         org = np.zeros((k, 3), dtype=np.float32)
         dirs = np.zeros((k, 3), dtype=np.float32)
         _k.generate_rays(origins, normals, keys, vertex_index, j0, j1, mode, org, dirs)
+        if ground is not None:  # the plane first: its hits are not traced
+            on_plane = np.empty(k, dtype=np.uint8)
+            _k.ground_rays(org, dirs, g_axis, g_height, g_reach, on_plane)
         ids = tracer.occluded(org, dirs, tfar)
+        if ground is not None:
+            ids = np.where(on_plane != 0, 0, ids)
         with lock:  # a vertex's rays may span chunks: integer sums, any order
             _k.count_hits(ids, j1 - j0, vertex_index, hits)
             if escapes is not None:

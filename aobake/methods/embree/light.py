@@ -16,7 +16,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ...constants import ADAPTIVE_FIRST_ROUND, CHUNK_RAYS, EPS32, RAY_OFFSET_ULPS, Z95
+from ...constants import (
+    ADAPTIVE_FIRST_ROUND,
+    CHUNK_RAYS,
+    EPS32,
+    INFINITE_DISTANCE,
+    RAY_OFFSET_ULPS,
+    Z95,
+)
 from ...contacts import contact_origins, ray_offsets
 from ...errors import NumericalError
 from ...kernels import lights as _kl
@@ -138,6 +145,16 @@ def _rounds(n: int, adaptive: bool) -> list[int]:
         j = min(2 * j, n)
 
 
+def run_light(
+    surface: Surface, shading: Shading, options, progress: Progress | None = None, *, indirect: bool = True
+) -> LightResult:
+    """The method interface (:func:`aobake.methods.run_light`): :func:`irradiance` with
+    the light fields of ``options`` (:class:`~aobake.methods.embree.EmbreeOptions`);
+    ``indirect=False`` computes direct light only."""
+    changes = {} if indirect else {"bounces": 0}
+    return irradiance(surface, shading, options.light(**changes), progress=progress)
+
+
 def irradiance(
     surface: Surface,
     shading: Shading,
@@ -177,6 +194,7 @@ def irradiance(
     are bit-identical for any thread count and chunking.
     """
     options = build(LightOptions, options, **changes)
+    _check_shading(surface, shading)
     t0 = time.perf_counter()
     progress = progress or NullProgress()
     threads = max(1, int(options.threads or os.cpu_count() or 1))
@@ -195,6 +213,7 @@ def irradiance(
     keys = _k.vertex_keys(np.uint64(options.seed), n)
     scale = float(tracer.scale)
     tmax = math.inf if options.max_distance is None else float(options.max_distance)
+    far_cap = min(tmax / scale, INFINITE_DISTANCE)  # the longest ray in Embree's frame
 
     kinds, params = light_table(lights, tracer.center)
     black = np.array([light.is_black for light in lights], dtype=bool)
@@ -262,28 +281,25 @@ def irradiance(
             return 0
         org = np.empty((k, 3), dtype=np.float32)
         dirs = np.empty((k, 3), dtype=np.float32)
-        far = np.empty(k)
+        far = np.empty(k, dtype=np.float32)
         w = np.empty((k, 3))
         row = np.empty(k, dtype=np.int64)
         comp = np.empty(k, dtype=np.int64)
-        trace = np.empty(k, dtype=np.int8)
-        m = _kl.direct_samples(
-            vidx, points, origins, normals, keys, kinds, params, j_lo, j_hi, reach,
-            points, faces, tris, cdf, emission, lum_total, face_offsets, scale, tmax,
-            org, dirs, far, w, row, comp, trace,
-        )  # fmt: skip
-        ids = np.full(m, -1, dtype=np.int32)
-        traced = np.flatnonzero(trace[:m])
-        if traced.size:
-            ids[traced] = tracer.occluded(org[traced], dirs[traced], far[traced])
         local = np.zeros((vidx.size, n_comp, 3))
         local_sq = np.zeros((vidx.size, n_comp, 3))
-        _kl.add_samples(ids, w, row, comp, m, local, local_sq)
+        m = _kl.direct_samples(
+            vidx, points, origins, normals, keys, kinds, params, j_lo, j_hi, reach,
+            points, faces, tris, cdf, emission, lum_total, face_offsets, scale, far_cap, local, local_sq,
+            org, dirs, far, w, row, comp,
+        )  # fmt: skip
+        if m:
+            ids = tracer.occluded_within(org[:m], dirs[:m], far[:m])
+            _kl.add_samples(ids, w, row, comp, m, local, local_sq)
         sums[vidx] += local
         squares[vidx] += local_sq
         with lock:
-            shadow_rays[:] += np.bincount(comp[traced], minlength=n_comp)
-        return int(traced.size)
+            shadow_rays[:] += np.bincount(comp[:m], minlength=n_comp)
+        return m
 
     def paths(vidx, p0, p1):
         per = p1 - p0
@@ -296,45 +312,38 @@ def irradiance(
         throughput = np.ones((count, 3))
         value_d = np.zeros((count, 3))
         value_i = np.zeros((count, 3))
-        dirs = np.zeros((count, 3), dtype=np.float32)
+        live = np.empty(count, dtype=np.int64)
+        org = np.empty((count, 3), dtype=np.float32)
+        dirs = np.empty((count, 3), dtype=np.float32)
+        k = count * n_comp
+        s_org = np.empty((k, 3), dtype=np.float32)
+        s_dir = np.empty((k, 3), dtype=np.float32)
+        s_far = np.empty(k, dtype=np.float32)
+        s_w = np.empty((k, 3))
+        s_row = np.empty(k, dtype=np.int64)
         rays = 0
         for depth in range(bounces + 1):
-            live = np.flatnonzero(alive)
-            if live.size == 0:
+            m = _kl.bounce_directions(path_org, path_normal, alive, keys, vertex_of, index_of, depth, inv_scale, live, org, dirs)
+            if m == 0:
                 break
-            _kl.bounce_directions(path_org, path_normal, alive, keys, vertex_of, index_of, depth, dirs)
-            d = np.ascontiguousarray(dirs[live])
-            hit = tracer.intersect((path_org[live] * inv_scale).astype(np.float32), d, np.full(live.size, tmax))
-            rays += live.size
-            prim = hit["primID"].astype(np.int64)
+            prim = tracer.first_hits(org[:m], dirs[:m], options.max_distance)
+            rays += m
             _kl.follow_hits(
-                live, prim, hit["tfar"], d, path_org, path_normal, throughput,
+                live, m, prim, org, dirs, scale, points, faces, path_org, path_normal, throughput,
                 value_d if depth == 0 else value_i, alive, face_normals, albedo, dome, face_offsets,
                 depth < bounces,
             )  # fmt: skip
             if depth == bounces:
                 break
-            live = np.flatnonzero(alive)
-            if live.size == 0:
-                break
-            k = live.size * n_comp
-            org = np.empty((k, 3), dtype=np.float32)
-            sdir = np.empty((k, 3), dtype=np.float32)
-            far = np.empty(k)
-            w = np.empty((k, 3))
-            row = np.empty(k, dtype=np.int64)
-            trace = np.empty(k, dtype=np.int8)
             m = _kl.hit_samples(
                 alive, path_org, path_normal, throughput, keys, vertex_of, index_of, depth,
                 kinds, params, has_emitters, points, faces, tris, cdf, emission, lum_total, face_offsets,
-                inv_scale, tmax, org, sdir, far, w, row, trace,
+                inv_scale, far_cap, value_i, s_org, s_dir, s_far, s_w, s_row,
             )  # fmt: skip
-            ids = np.full(m, -1, dtype=np.int32)
-            traced = np.flatnonzero(trace[:m])
-            if traced.size:
-                ids[traced] = tracer.occluded(org[traced], sdir[traced], far[traced])
-            rays += traced.size
-            _kl.add_path_samples(ids, w, row, m, value_i)
+            if m:
+                ids = tracer.occluded_within(s_org[:m], s_dir[:m], s_far[:m])
+                _kl.add_path_samples(ids, s_w, s_row, m, value_i)
+            rays += m
         sd = np.zeros((vidx.size, 3))
         si = np.zeros((vidx.size, 3))
         sq = np.zeros((vidx.size, 3))
@@ -411,6 +420,20 @@ def irradiance(
         seconds=time.perf_counter() - t0,
         contacts=contacts,
     )
+
+
+def _check_shading(surface: Surface, shading: Shading) -> None:
+    """ValueError unless ``shading``'s arrays fit ``surface`` and are finite, albedo in
+    [0, 1] and emission >= 0 (a reader's bug, not a user's file: readers check those)."""
+    m, n = surface.n_faces, surface.n_vertices
+    for name, rows in (("face_albedo", m), ("face_emission", m), ("vertex_albedo", n), ("vertex_emission", n)):
+        arr = np.asarray(getattr(shading, name))
+        if arr.shape != (rows, 3):
+            raise ValueError(f"shading.{name} has shape {arr.shape}, the surface needs ({rows}, 3)")
+        if not np.isfinite(arr).all() or arr.min(initial=0.0) < 0:
+            raise ValueError(f"shading.{name} has negative or non-finite values")
+    if np.asarray(shading.face_albedo).max(initial=0.0) > 1:
+        raise ValueError("shading.face_albedo above 1 would add energy at every bounce")
 
 
 def _estimate(sums, squares, path_d, path_i, path_sq, taken, taken_paths, sampled, exact, rows, split=False):

@@ -17,6 +17,24 @@ from ...options import (
 MAX_RAYS = 2**32
 
 
+# The light fields, spelled once: EmbreeOptions carries them for the CLI (`bake` of a lit
+# scene), LightOptions for :func:`aobake.methods.embree.light.irradiance`.
+def _light_samples():
+    return option(64, "Shadow rays per area light and vertex (lit scenes).", kind=int, low=1, high=MAX_RAYS, flag="light-samples")
+
+
+def _bounces():
+    return option(1, "Indirect bounces of light (lit scenes; 0 = direct light only).", kind=int, low=0, high=64)
+
+
+def _indirect_rays():
+    return option(
+        256,
+        "Indirect paths per vertex (lit scenes; each bounce adds one ray per path).",
+        kind=int, low=1, high=MAX_RAYS, flag="indirect-rays",
+    )  # fmt: skip
+
+
 @dataclass(frozen=True)
 class EmbreeOptions:
     """What a user chooses for :func:`aobake.methods.embree.embree_ao`.
@@ -32,10 +50,14 @@ class EmbreeOptions:
         Ray-origin offset along the normal in mesh units; None = from float precision
         and the local edge length (:func:`aobake.contacts.ray_offsets`).
     tolerance : float or None
-        Adaptive sampling: stop a vertex once its 95% interval half-width is below this.
+        Adaptive sampling: stop a vertex once its 95% interval half-width is below this
+        (for light: below this fraction of its irradiance).
     bent_normals : bool
         Also estimate the bent normal per vertex (``EmbreeAO.bent_normals``, written
         as the attribute ``bentNormal``) from the same rays.
+    light_samples, bounces, indirect_rays : int
+        A lit scene's light (:class:`LightOptions` ``n_samples``, ``bounces``,
+        ``n_indirect``); unused where the scene has no light.
     seed : int
         Key of the per-vertex Owen-scrambled Sobol directions.
     threads : int or None
@@ -54,7 +76,7 @@ class EmbreeOptions:
     )
     tolerance: float | None = option(
         None,
-        "Adaptive: stop a vertex once its 95% interval half-width is below this.",
+        "Adaptive: stop a vertex once its 95% interval half-width is below this (light: this fraction of its irradiance).",
         kind=float,
         low=0,
         low_open=True,
@@ -65,11 +87,24 @@ class EmbreeOptions:
         "Also write bentNormal: the mean unoccluded direction per vertex (unit, world space).",
         kind=bool,
     )
+    light_samples: int = _light_samples()
+    bounces: int = _bounces()
+    indirect_rays: int = _indirect_rays()
     seed: int = seed_option()
     threads: int | None = threads_option()
 
     def __post_init__(self):
         validate(self)
+
+    def light(self, **changes) -> LightOptions:
+        """The :class:`LightOptions` these options stand for (``changes`` override them)."""
+        fields = dict(
+            n_samples=self.light_samples, bounces=self.bounces, n_indirect=self.indirect_rays,
+            tolerance=self.tolerance, max_distance=self.max_distance, bias=self.bias,
+            seed=self.seed, threads=self.threads,
+        )  # fmt: skip
+        fields.update(changes)
+        return LightOptions(**fields)
 
 
 OPTIONS = EmbreeOptions
@@ -96,9 +131,9 @@ class LightOptions:
         As for :class:`EmbreeOptions`.
     """
 
-    n_samples: int = option(64, "Shadow rays per area light and vertex.", kind=int, low=1, high=MAX_RAYS, flag="light-samples")
-    bounces: int = option(1, "Indirect bounces (0 = direct light only).", kind=int, low=0, high=64)
-    n_indirect: int = option(256, "Indirect paths per vertex (each bounce adds one ray per path).", kind=int, low=1, high=MAX_RAYS, flag="indirect-rays")
+    n_samples: int = _light_samples()
+    bounces: int = _bounces()
+    n_indirect: int = _indirect_rays()
     tolerance: float | None = option(
         None,
         "Adaptive: stop a vertex once its 95% half-width is below this fraction of its irradiance.",
