@@ -16,6 +16,8 @@ INPUTS   := $(foreach e,$(MESH_EXT),$(wildcard $(IN)/*.$(e)))
 STEMS    := $(basename $(notdir $(INPUTS)))
 OUT_PLY  := $(STEMS:%=$(OUT)/%.ply)
 OUT_USD  := $(STEMS:%=$(OUT)/%.usda)
+# the lit colour of the bundled Cornell box, previewed (when IN holds it)
+OUT_PNG  := $(if $(wildcard $(IN)/cornell_box.usda),$(OUT)/cornell_box.png)
 
 .PHONY: help venv bake batch test bench bench-deps bench-embree bench-bunnell bench-field bench-batch bench-process bench-light report lint coverage clean
 
@@ -32,13 +34,13 @@ $(STAMP): pyproject.toml
 
 # Compiles the kernels once (aobake warm-up, quick when cached), then says what it baked
 # ("baked data/x.ply -> ..."), or that nothing needed baking.
-bake: $(STAMP) ## Compile the kernels once (aobake warm-up), then bake every mesh in data/ into out/ (PLY and USD)
+bake: $(STAMP) ## Compile the kernels once (aobake warm-up), then bake every mesh in data/ into out/ (PLY and USD; out/cornell_box.png: its lit colour)
 	@$(AOBAKE) warm-up
 	@if $(MAKE) -q --no-print-directory batch IN=$(IN) OUT=$(OUT); then \
 	  echo "$(OUT)/ is up to date ($(words $(STEMS)) meshes)"; \
 	else $(MAKE) --no-print-directory batch IN=$(IN) OUT=$(OUT); fi
 
-batch: $(STAMP) $(OUT_PLY) $(OUT_USD) ## Bake IN=dir into OUT=dir (parallel with -j, only what changed)
+batch: $(STAMP) $(OUT_PLY) $(OUT_USD) $(OUT_PNG) ## Bake IN=dir into OUT=dir (parallel with -j, only what changed)
 
 # One bake per mesh writes both files (grouped targets, GNU make >= 4.3); one rule per
 # input suffix, so data/x.obj and data/x.ply map to out/x.* (the first found wins).
@@ -54,6 +56,12 @@ $(OUT):
 
 # PLY has no up axis; the bundled procedural scenes are +Z up (data/README.md).
 out/sphere_on_ground.ply out/sphere_on_ground.usda out/box_stack.ply out/box_stack.usda: BAKE_FLAGS += --up Z
+# The Cornell box is lit: its vertex colours are the lit colour, one stop brighter.
+$(OUT)/cornell_box.ply $(OUT)/cornell_box.usda: BAKE_FLAGS += --color --exposure 1
+
+$(OUT)/cornell_box.png: $(OUT)/cornell_box.ply
+	@$(AOBAKE) preview $< --show color --view front -o $@
+	@echo "previewed $< -> $@"
 
 test: $(STAMP) ## Run the test suite
 	$(PY) -m pytest -q

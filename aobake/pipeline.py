@@ -156,8 +156,14 @@ def bake(
     True
     """
     surface = as_surface(mesh)
-    ao, *_ = _compute(surface, method, options, progress, ground=_ground(surface, ground, None))
+    plane = _ground(surface, ground, None)
+    ao, *_ = _compute(surface, method, options, progress, **_plane(plane))
     return ao
+
+
+def _plane(ground) -> dict:
+    """``{"ground": ground}`` for :func:`_compute`, or nothing without a plane."""
+    return {} if ground is None else {"ground": ground}
 
 
 def _ground(surface: Surface, ground, up_axis: str | None):
@@ -433,15 +439,15 @@ def _bake_range(
                 raise ValueError("a welded mesh is baked whole: weld takes no vertex range")
             welded, inverse = weld_vertices(surface)
             scene = welded if selection is None else selection.scene(welded)
-            ao, n_rays, contacts, attributes = _compute(scene, method, options, progress, ground=ground)
+            ao, n_rays, contacts, attributes = _compute(scene, method, options, progress, **_plane(ground))
             ao = np.asarray(ao)[inverse]
             attributes = {k: np.asarray(v)[inverse] for k, v in attributes.items()}
         elif selection is not None:
             ao, n_rays, contacts, attributes = _compute_selected(
-                surface, method, options, progress, vertices, selection, ground
+                surface, method, options, progress, vertices, selection, **_plane(ground)
             )
         else:
-            ao, n_rays, contacts, attributes = _compute(surface, method, options, progress, vertices, ground)
+            ao, n_rays, contacts, attributes = _compute(surface, method, options, progress, vertices, **_plane(ground))
         if light is not None and light.lit:
             attributes, totals = _compute_light(surface, method, options, progress, vertices, weld, selection, light, attributes)
         seconds = perf_counter() - t0 - watch.seconds
@@ -477,13 +483,13 @@ def _compute_selected(surface: Surface, method: str, options: dict, progress, ve
 
     scene = selection.scene(surface)
     if method not in SPLITTABLE:
-        return _compute(scene, method, options, progress, vertices, ground)
+        return _compute(scene, method, options, progress, vertices, **_plane(ground))
     lo, hi = (0, surface.n_vertices) if vertices is None else vertices
     found = np.flatnonzero(selection.receiving(surface)[lo:hi])
     if found.size == 0:
         return np.ones(hi - lo), 0, 0, {}
     a, b = lo + int(found[0]), lo + int(found[-1]) + 1
-    ao, n_rays, contacts, attributes = _compute(scene, method, options, progress, (a, b), ground)
+    ao, n_rays, contacts, attributes = _compute(scene, method, options, progress, (a, b), **_plane(ground))
     full = np.ones(hi - lo)
     full[a - lo : b - lo] = ao
     padded = {}

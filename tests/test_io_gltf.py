@@ -19,7 +19,7 @@ from aobake.io import load_mesh, read_bake, write_bake
 from aobake.pipeline import bake_file
 from aobake.testing import scenes
 
-OPTS = dict(n_rays=32, seed=7, threads=1)
+OPTS = dict(n_rays=32, seed=7, threads=1, effects="ao")  # the asset emits; these tests are of the AO (lit: test_light_bake)
 #: part order of the scene: depth-first, children as listed (props lists box_b first)
 PARTS = ["ground", "box_b", "tet", "box_a"]
 

@@ -322,6 +322,9 @@ def test_gltf_kept_with_punctual_lights(runner, lit_glb, tmp_path):
     np.testing.assert_allclose(e, d + i, rtol=1e-6, atol=1e-7)
     np.testing.assert_allclose(_gltf_attribute(out, "COLOR_0")[:, :3], _lit(0.18, e), atol=1e-6)
     assert e.max() > 0 and np.isfinite(e).all()
+    record = g.asset.extras["aobake"]
+    assert record["effects"] == "ao, direct, indirect"
+    assert record["lights"] == "bulb, spot, sun" and record["lights_skipped"] == "under"
 
 
 def test_gltf_new_file_from_ply_with_light(runner, scene_ply, tmp_path):
@@ -609,3 +612,25 @@ def test_lights_are_read_from_the_file_on_disk_not_a_stale_layer(runner, tmp_pat
     _ok(runner, ["bake", src, "-o", out, *FEW, "-q"])
     np.testing.assert_allclose(_ply_columns(out, IRR), 3.0, rtol=1e-6)
     assert held.GetPrimAtPath("/sun")  # (still held)
+
+
+def test_obj_mtl_albedo_and_emission_in_the_lit_colour(runner, tmp_path):
+    """OBJ/MTL: Kd is the albedo, Ke the emission of a panel facing the floor; the lit
+    colour adds the panel's own emission, halved by --exposure -1."""
+    (tmp_path / "s.mtl").write_text("newmtl floor\nKd 0.5 0.4 0.3\nnewmtl panel\nKd 0.2 0.2 0.2\nKe 0.3 0.25 0.2\n")
+    (tmp_path / "s.obj").write_text(
+        "mtllib s.mtl\nv -1 -1 0\nv 1 -1 0\nv 1 1 0\nv -1 1 0\n"
+        "v -0.5 -0.5 1\nv -0.5 0.5 1\nv 0.5 0.5 1\nv 0.5 -0.5 1\n"
+        "g floor\nusemtl floor\nf 1 2 3 4\ng panel\nusemtl panel\nf 5 6 7 8\n"  # the panel faces -z
+    )
+    out = tmp_path / "o.usda"
+    _ok(runner, ["bake", tmp_path / "s.obj", "-o", out, "-o", tmp_path / "o.ply", *FEW, "-q", "--color", "--exposure", "-1"])
+    e = _usd_primvar(out, "irradiance")
+    albedo = np.array([[0.5, 0.4, 0.3]] * 4 + [[0.2, 0.2, 0.2]] * 4)
+    emission = np.array([[0.0] * 3] * 4 + [[0.3, 0.25, 0.2]] * 4)
+    assert (e[:4] > 0).all()  # the floor is lit by the panel
+    np.testing.assert_allclose(_usd_primvar(out, "displayColor"), _lit(albedo, e, -1.0, emission), atol=1e-6)
+    colour = srgb_to_linear(_ply_columns(tmp_path / "o.ply", ["red", "green", "blue"]) / 255.0)
+    np.testing.assert_allclose(colour, _lit(albedo, e, -1.0, emission), atol=0.004)
+    custom = _usd_custom(out)[0]
+    assert custom["emitting_triangles"] == 2 and custom["lights"] == "none" and custom["exposure"] == -1.0
