@@ -7,8 +7,12 @@ from __future__ import annotations
 
 import numpy as np
 
-# numba fastmath flags that keep NaN/inf semantics (stumpy's set): a miss at infinite
-# distance and a NaN guard must still behave, so "nnan" and "ninf" are left out.
+# numba fastmath flags, for the disk method's tree pass only (kernels/treepass.py and its
+# list sums: their loops vectorise only if LLVM may reassociate the sums). Every other kernel rounds as
+# written: numba links a copy of each callee (and of a parallel kernel's body) into its
+# caller and optimises it again there, fastmath lets LLVM round that copy differently,
+# and which copy runs depends on what was compiled or loaded from the cache first
+# (docs/first-run.md, issue 19). "nnan" and "ninf" are left out: NaN/inf tests must hold.
 FASTMATH = {"nsz", "arcp", "contract", "afn", "reassoc"}
 
 FLOAT = np.float64

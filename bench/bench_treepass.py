@@ -5,7 +5,8 @@ Times every ``_Pass.sums`` call (one pass over every receiver bucket) of
 gated later passes. To compare kernel changes, run it from two checkouts
 (``PYTHONPATH=<checkout>``), interleaved, with a warm numba cache (a first run compiles).
 
-Usage: ``python bench/bench_treepass.py [--scene spheres|bunny] [--repeats N]``.
+Usage: ``python bench/bench_treepass.py [--scene spheres|bunny] [--repeats N] [--vertices N]
+[--measure cosine|uniform]``.
 """
 
 from __future__ import annotations
@@ -23,9 +24,11 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--scene", choices=("spheres", "bunny"), default="spheres")
     parser.add_argument("--repeats", type=int, default=1)
+    parser.add_argument("--vertices", type=int, default=700_000)
+    parser.add_argument("--measure", choices=("cosine", "uniform"), default="cosine")
     args = parser.parse_args()
     build = common.spheres_on_ground if args.scene == "spheres" else common.bunny_on_ground
-    surface, _ = build(700_000)
+    surface, _ = build(args.vertices)
     elements = build_elements(surface)
     tree = build_tree(elements)
     times = []
@@ -40,8 +43,8 @@ def main() -> None:
     P._Pass.sums = timed_sums
     for _ in range(args.repeats):
         times.clear()
-        occlusion_passes(elements, tree, BunnellOptions(passes=3))
-        print(f"{args.scene} n={elements.n_vertices} per pass s: "
+        occlusion_passes(elements, tree, BunnellOptions(passes=3, measure=args.measure))
+        print(f"{args.scene} {args.measure} n={elements.n_vertices} per pass s: "
               + " ".join(f"{t:.3f}" for t in times), flush=True)
 
 

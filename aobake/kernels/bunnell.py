@@ -27,7 +27,6 @@ from aobake.constants import (
     COINCIDENT_REL,
     DIRECTION_SECTORS,
     DIRECTION_WIDE,
-    FASTMATH,
     MEASURE_COSINE,
     MEASURE_UNIFORM,
     PASS_RADII,
@@ -86,7 +85,7 @@ HALF32 = np.float32(0.5)
 # scalar form factors (float64; the exact sum and the tests)
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def disk_term(r2, r, proj, area, g, measure):
     """Occlusion of a receiver by one disk.
 
@@ -118,7 +117,7 @@ def disk_term(r2, r, proj, area, g, measure):
     return proj * g / (np.pi * s * (s + r))
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def receiver_factor(nd, r, has_normal, measure):
     """Receiver weight g from ``nd = n.d`` (``cos_r = nd / r``); see NO_NORMAL_* when n = 0."""
     if not has_normal:
@@ -132,7 +131,7 @@ def receiver_factor(nd, r, has_normal, measure):
     return min(4.0 * nd / r, 1.0)
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def is_near(cx, cy, cz, area, px, py, pz, near):
     """The near-field test ``r^2 < near A``, in float32 for every kernel alike (so the exact
     sum and the tree pass take the same emitters as near)."""
@@ -143,7 +142,7 @@ def is_near(cx, cy, cz, area, px, py, pz, near):
     return r2 < np.float32(near) * np.float32(area)
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def level_of(r2, thresholds):
     """Number of ``thresholds`` (ascending squared distances) that ``r2`` reaches."""
     k = 0
@@ -152,7 +151,7 @@ def level_of(r2, thresholds):
     return k
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def gate_factor(ox, oy, oz, px, py, pz, nx, ny, nz, r, gate):
     """How much of an emitter's occlusion counts for a receiver (passes >= 2, gated).
 
@@ -170,7 +169,7 @@ def gate_factor(ox, oy, oz, px, py, pz, nx, ny, nz, r, gate):
 # per-direction saturation (cosine measure): bins of the receiver's hemisphere
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def sector_coords(dx, dy, dz, d2, frame, nx, ny, nz):
     """Where direction d falls among the receiver's direction bins: ``(up, low, q, pole)``.
 
@@ -201,7 +200,7 @@ def sector_coords(dx, dy, dz, d2, frame, nx, ny, nz):
     return one - low, low, q, pole
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def tent(q, centre):
     """Share of sector ``centre - 1/2`` for pseudo-angle q: linear between the two
     nearest sector centres (round the circle), so a term on a border is split, not
@@ -211,7 +210,7 @@ def tent(q, centre):
     return max(np.float32(1.0) - d, ZERO32)
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def is_wide(area, d2):
     """A disk or cluster of area A at squared distance d2 too wide to bin:
     ``A >= DIRECTION_WIDE d2`` (a product and a compare: the same in float32 lanes and
@@ -219,7 +218,7 @@ def is_wide(area, d2):
     return area >= np.float32(DIRECTION_WIDE) * d2
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def add_directions(dirs, f, b, area, dx, dy, dz, d2, frame, nx, ny, nz):
     """Spread the (front, back) term of an emitter (area A) in direction d over the
     receiver's direction bins ``dirs`` (2, 2 SECTORS + 1): bin k < SECTORS is azimuth
@@ -243,7 +242,7 @@ def add_directions(dirs, f, b, area, dx, dy, dz, d2, frame, nx, ny, nz):
         dirs[1, SECTORS + k] += b * low * a
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def direction_excess(dirs, side):
     """What side's direction bins hold beyond their measure ``1 / (2 SECTORS)`` each."""
     cap = 0.5 / SECTORS
@@ -261,7 +260,7 @@ FILL_GIVE = 2  # a later pass: give back part of what it removes (:func:`refill`
 FILL_KEEP_IF = 3  # keep them where the receiver bins anyway (the ground plane's settling)
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def keep_bins(dirs, store, row):
     """Pass 1: a receiver's direction bins, both sides, into ``store[row]``."""
     for side in range(2):
@@ -269,7 +268,7 @@ def keep_bins(dirs, store, row):
             store[row, side, k] = dirs[side, k]
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def refill(dirs, store, row, side):
     """What a later pass gives back on ``side``: ``sum_k (v1_k - v_k) v1_k / cap`` with
     ``v = min(bin, cap)`` (cap = one bin's measure), v1 from pass 1 (``store[row]``), v
@@ -284,7 +283,7 @@ def refill(dirs, store, row, side):
     return e
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def settle_fill(dirs, store, row, mode):
     """What a binned receiver does with its direction bins for later passes (both kernels):
     ``(front, back)`` to add to its totals. Row ``row`` of ``store`` (-1: none): pass 1
@@ -298,7 +297,7 @@ def settle_fill(dirs, store, row, mode):
     return refill(dirs, store, row, 0), refill(dirs, store, row, 1)
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def receiver_at(points, normals, i):
     """``(px, py, pz, nx, ny, nz, has_normal)`` of receiver i (a zero normal row: none)."""
     nx = normals[i, 0]
@@ -307,7 +306,7 @@ def receiver_at(points, normals, i):
     return points[i, 0], points[i, 1], points[i, 2], nx, ny, nz, nx * nx + ny * ny + nz * nz > 0.0
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", parallel=True)
+@njit(cache=True, error_model="numpy", parallel=True)
 def brute_force_pass(disks, cells, emitter_index, receivers, receiver_index, options, out, first,
                      fill):
     """Exact O(n k) sums ``out[i] = (front, back)`` for every ``i`` in receiver_index.
@@ -446,7 +445,7 @@ def brute_force_pass(disks, cells, emitter_index, receivers, receiver_index, opt
                 )
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def disk_pair32(dx, dy, dz, r2, mx, my, mz, wa, a, nx, ny, nz, has_normal, measure):
     """float32 (front, back) disk terms of one emitter (:func:`disk_term` on either side)."""
     e = -(mx * dx + my * dy + mz * dz)
@@ -476,7 +475,7 @@ PLANE_NODES = (-0.8611363115940526, -0.3399810435848563, 0.3399810435848563, 0.8
 PLANE_WEIGHTS = (0.3478548451374538, 0.6521451548625461, 0.6521451548625461, 0.3478548451374538)
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", parallel=True)
+@njit(cache=True, error_model="numpy", parallel=True)
 def plane_bins(normals, cos_reach, axis, out):
     """``out[i, k]``: cosine-weighted measure (over pi) of the directions in receiver i's
     direction bin k that meet the ground plane: the cone -d.up >= cos_reach[i] about -up

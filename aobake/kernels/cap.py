@@ -14,13 +14,11 @@ import math
 
 from numba import njit, prange
 
-from ..constants import FASTMATH
-
 INV_PI = 1.0 / math.pi
 FOUR_PI = 4.0 * math.pi
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _cap_upper(cs, ct):
     """1/pi int_cap max(0, n.w) dw for a cap with cos(half-angle) ``cs`` in [0, 1] whose
     axis makes cos(theta) = ``ct`` with n (Snyder's closed form, sigma <= pi/2)."""
@@ -41,7 +39,7 @@ def _cap_upper(cs, ct):
     return min(max(val * INV_PI, 0.0), 1.0)
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def cap_occlusion(omega, ct):
     """Cosine-weighted occlusion A of a spherical cap of solid angle ``omega`` whose axis
     makes cos(theta) = ``ct`` with the normal: C(Omega, cos theta) in [0, 1].
@@ -60,14 +58,14 @@ def cap_occlusion(omega, ct):
     return 1.0 - _cap_upper(-cs, -ct)
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", parallel=True)
+@njit(cache=True, error_model="numpy", parallel=True)
 def cap_occlusion_array(omega, cos_theta, out):
     """out[i] = cap_occlusion(omega[i], cos_theta[i]) for (n,) float64 arrays."""
     for i in prange(omega.shape[0]):
         out[i] = cap_occlusion(omega[i], cos_theta[i])
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def cap_lookup(lut, omega, ct):
     """Bilinear lookup of C(Omega, cos theta) in ``lut`` (n_o + 1, n_c + 1), sampled at
     Omega = 4 pi i / n_o and cos theta = -1 + 2 j / n_c (built from the closed form)."""

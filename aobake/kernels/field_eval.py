@@ -14,7 +14,6 @@ import math
 
 from numba import njit, prange
 
-from ..constants import FASTMATH
 from .cap import cap_lookup
 from .field_model import (
     MODEL_TABLE,
@@ -33,7 +32,7 @@ from .field_model import (
 from .raster import FACE_AXIS, FACE_U, FACE_V, major_face
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _texel_omega(texels, f, i, j, d, model):
     """Omega~ and unit Y~ of texel (f, i, j) (padded indices) at distance d >= 0 from
     the hull, r_c = r0 + d along the texel's own direction w (columns P_WX..):
@@ -53,7 +52,7 @@ def _texel_omega(texels, f, i, j, d, model):
     return om, -wx, -wy, -wz, r0
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def field_occlusion(texels, table, lut, config, x, y, z, nx, ny, nz):
     """Occlusion A in [0, 1] of one field at a receiver (x, y, z) with normal n, both
     in the field's frame (centre at the origin). ``config`` = (r_far, r_near, A0, p,
@@ -143,7 +142,7 @@ def field_occlusion(texels, table, lut, config, x, y, z, nx, ny, nz):
     return min(max(a, 0.0), 1.0)
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", parallel=True)
+@njit(cache=True, error_model="numpy", parallel=True)
 def evaluate(arrays, config, frame, positions, normals, ao, skipped):
     """Multiply ``ao`` by 1 - A of one field at every receiver (1 - A = prod (1 - A_k)).
 

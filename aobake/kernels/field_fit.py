@@ -16,7 +16,6 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from ..constants import FASTMATH
 from .field_model import (
     N_PARAMS,
     OMEGA_MIN,
@@ -34,7 +33,7 @@ from .field_model import (
 )
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _damped_step(h, g, mu, eps, kkt, rhs):
     """Levenberg-Marquardt step of a 3-parameter fit: solve ``(H + mu diag(H) + eps I)
     x = -g`` into ``rhs`` (``kkt``: scratch); False when singular."""
@@ -46,7 +45,7 @@ def _damped_step(h, g, mu, eps, kkt, rhs):
     return _solve_small(kkt, rhs, 3)
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy")
+@njit(cache=True, error_model="numpy")
 def _solve_small(m, b, n):
     """Solve m[:n, :n] x = b[:n] in place (Gaussian elimination, partial pivoting).
 
@@ -87,12 +86,12 @@ def _solve_small(m, b, n):
     return True
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _den(beta, s):
     return beta[0] + s * (beta[1] + s * beta[2])
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy")
+@njit(cache=True, error_model="numpy")
 def _den_min(b0, b1, b2, slo, shi):
     """Smallest value of b0 + b1 s + b2 s^2 on [slo, shi] and where it is (scalars, so
     callers' C and strided arrays share one specialisation)."""
@@ -110,7 +109,7 @@ def _den_min(b0, b1, b2, slo, shi):
     return s_best, d_best
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy")
+@njit(cache=True, error_model="numpy")
 def _fit_denominator(s, om, ok, slo, npar, beta, work, model):
     """Weighted LLS of den(Omega_i) ~ beta0 + beta1 s + beta2 s^2 (first ``npar``
     terms), weights (dOmega/dden)^2 (the error in Omega; (Omega / max)^4 for the paper's
@@ -180,7 +179,7 @@ def _fit_denominator(s, om, ok, slo, npar, beta, work, model):
     beta[0] = max(q[0] / h[0, 0], target)
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _trial_step(h, g, mu, eps, kkt, rhs, x, trial):
     """A damped step from ``x`` into ``trial`` (:func:`_damped_step`); False when singular."""
     if not _damped_step(h, g, mu, eps, kkt, rhs):
@@ -190,7 +189,7 @@ def _trial_step(h, g, mu, eps, kkt, rhs, x, trial):
     return True
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _improves(new, cost, trial, x):
     """Levenberg-Marquardt's acceptance: ``trial`` replaces ``x`` when it lowers the cost."""
     if new < cost:
@@ -200,7 +199,7 @@ def _improves(new, cost, trial, x):
     return False
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy")
+@njit(cache=True, error_model="numpy")
 def _refine_omega(s, om, ok, q, slo, beta, iters, work, model):
     """Levenberg-Marquardt on sum q_i (Omega_i - Omega~(s_i))^2 (the paper's error in
     Omega, with quadrature weights q), keeping den >= den_floor on [slo, 1]; steps that
@@ -250,7 +249,7 @@ def _refine_omega(s, om, ok, q, slo, beta, iters, work, model):
             break
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _clamp_centre(c, dx, dy, dz, limit):
     """Project C onto the half-space C.w <= limit (w = the texel direction)."""
     excess = c[0] * dx + c[1] * dy + c[2] * dz - limit
@@ -260,7 +259,7 @@ def _clamp_centre(c, dx, dy, dz, limit):
         c[2] -= excess * dz
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy")
+@njit(cache=True, error_model="numpy")
 def _centre_cost(c0, c1, c2, radii, unit, dx, dy, dz, wts, lam, tiny):
     """sum w_i |normalize(C - x_i) - Y_i|^2 + lam |C|^2 (C as scalars, so callers' C and
     strided arrays share one specialisation)."""
@@ -281,7 +280,7 @@ def _centre_cost(c0, c1, c2, radii, unit, dx, dy, dz, wts, lam, tiny):
     return e
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy")
+@njit(cache=True, error_model="numpy")
 def _refine_centre(c, radii, unit, dx, dy, dz, wts, lam, limit, iters, work):
     """Projected Levenberg-Marquardt on :func:`_centre_cost` from ``c`` (in place);
     returns the final cost."""
@@ -333,7 +332,7 @@ def _refine_centre(c, radii, unit, dx, dy, dz, wts, lam, limit, iters, work):
     return cost
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy")
+@njit(cache=True, error_model="numpy")
 def _fit_centre(radii, unit, dx, dy, dz, wts, limit, iters, c_out, work):
     """C_o for one texel (see :func:`fit_texels`); ``limit`` bounds C.w (the hull
     distance), so Y~ seen from any point outside the hull points into it."""
@@ -378,7 +377,7 @@ def _fit_centre(radii, unit, dx, dy, dz, wts, limit, iters, c_out, work):
         c_out[0], c_out[1], c_out[2] = c0[0], c0[1], c0[2]
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", parallel=True)
+@njit(cache=True, error_model="numpy", parallel=True)
 def fit_texels(radial, samples, dirs, r0, r_far, settings, out_params, out_resid):
     """Fit the 7 scalars of every texel to its radial samples.
 

@@ -15,8 +15,6 @@ import math
 
 from numba import njit
 
-from ..constants import FASTMATH
-
 TWO_PI = 2.0 * math.pi
 FOUR_PI = 4.0 * math.pi
 
@@ -40,7 +38,7 @@ MODEL_TABLE = 2
 _COS_FLOOR = 0.05
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def model_omega(den, model):
     """Omega of a denominator value; 0 for den <= 0 (an empty texel has a = b = c = 0)."""
     if not den > 0.0:
@@ -51,7 +49,7 @@ def model_omega(den, model):
     return TWO_PI * (1.0 - math.sqrt(x))
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def model_slope(den, model):
     """-dOmega/dden (>= 0) at ``den``."""
     if model == MODEL_PAPER:
@@ -59,7 +57,7 @@ def model_slope(den, model):
     return math.pi / (den * den * max(math.sqrt(max(1.0 - 1.0 / den, 0.0)), _COS_FLOOR))
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def omega_to_den(om, model):
     """The denominator a sample's Omega (> 0) asks for."""
     if model == MODEL_PAPER:
@@ -69,7 +67,7 @@ def omega_to_den(om, model):
     return 1.0 / s2
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def den_floor(model):
     """Smallest denominator the fit may reach on [r0, r_far]: Omega <= 4 pi (paper),
     Omega <= 2 pi (cap; outside the hull the occluder fits in a half-space)."""

@@ -11,11 +11,10 @@ import math
 import numpy as np
 from numba import njit
 
-from ..constants import FASTMATH
 from . import rng, warps
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", nogil=True)
+@njit(cache=True, error_model="numpy", nogil=True)
 def footprint_rays(geometry, keys, point_index, per, out_org, out_dir):
     """Fill ``per`` rays of every point in ``point_index``, point-major.
 

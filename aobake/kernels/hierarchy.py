@@ -22,7 +22,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from aobake.constants import FASTMATH, TREE_BUILD_STACK
+from aobake.constants import TREE_BUILD_STACK
 
 N_X, N_Y, N_Z, N_RADIUS, N_OPEN_D2, N_WAREA = 0, 1, 2, 3, 4, 5
 N_NX, N_NY, N_NZ = 6, 7, 8
@@ -41,7 +41,7 @@ E_X, E_Y, E_Z, E_MX, E_MY, E_MZ, E_AREA = 0, 1, 2, 3, 4, 5, 6
 EMITTER_COLS = 8
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy")
+@njit(cache=True, error_model="numpy")
 def build_tree(keys, leaf_size):
     """Median-split binary tree over integer point keys, built iteratively (explicit stack).
 
@@ -105,7 +105,7 @@ def build_tree(keys, leaf_size):
     return order, start[:m].copy(), stop[:m].copy(), skip
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def longest_axis(keys, order, lo, hi):
     """Axis (0, 1, 2) and extent of the longest side of the bounding box of order[lo:hi]
     (ties go to the lower axis)."""
@@ -134,7 +134,7 @@ def longest_axis(keys, order, lo, hi):
     return 2, ez
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def key_less(keys, a, b, axis):
     """Strict order on elements: by key along ``axis``, then by index (all pairs distinct)."""
     ka = keys[a, axis]
@@ -142,7 +142,7 @@ def key_less(keys, a, b, axis):
     return ka < kb or (ka == kb and a < b)
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy")
+@njit(cache=True, error_model="numpy")
 def select(keys, order, lo, hi, kth, axis):
     """Reorder order[lo:hi] in place so that order[kth] is the element of rank kth - lo
     under :func:`key_less`, smaller ones left of it and larger ones right.
@@ -185,7 +185,7 @@ def select(keys, order, lo, hi, kth, axis):
             break
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", parallel=True)
+@njit(cache=True, error_model="numpy", parallel=True)
 def node_geometry(positions, areas, order, start, stop, out):
     """Per node q (float64 columns of ``out``, shape (m, 6)): 0-2 centre
     ``sum A c / sum A``, 3 radius ``max |c_j - centre| + sqrt(A_j / pi)`` (disks included,
@@ -235,7 +235,7 @@ def node_geometry(positions, areas, order, start, stop, out):
         out[q, 5] = biggest
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", parallel=True)
+@njit(cache=True, error_model="numpy", parallel=True)
 def emitter_rows(positions, normals, areas, order, rows):
     """``rows[t]`` = (position, normal, area) of emitter ``order[t]`` in float32 (the
     columns E_X..E_AREA; the others are left alone): the tree-order copy the passes read.
@@ -255,7 +255,7 @@ def emitter_rows(positions, normals, areas, order, rows):
         rows[t, E_AREA] = areas[j]
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def spread_factor(area, txx, tyy, tzz, txy, txz, tyz):
     """kappa in [sqrt(3)/2, 1] from the normal moments: with ``rho = tr(T^2) / A_w^2`` in
     [1/3, 1] (1: normals along one axis; 1/3: isotropic),
@@ -270,7 +270,7 @@ def spread_factor(area, txx, tyy, tzz, txy, txz, tyz):
     return base + (1.0 - base) * 0.5 * (3.0 * rho - 1.0)
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy")
+@njit(cache=True, error_model="numpy")
 def refit_nodes(emitters, weights, occluders, skip, start, stop, nodes, moments, leveled):
     """Per-pass node sums from the emitters' weights, one set per weight level ``l``:
     ``A_w = sum w_l A``, ``N = sum w_l A m``, ``kappa^2 T`` with ``T = sum w_l A m m^T``
@@ -361,7 +361,7 @@ def refit_nodes(emitters, weights, occluders, skip, start, stop, nodes, moments,
             nodes[q, N_TXX + c] = moments[q, last, 4 + c]
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy")
+@njit(cache=True, error_model="numpy")
 def leaf_representatives(positions, normals, areas, order, skip, start, stop, cos_min, rep_of):
     """Which emitter's later passes each emitter takes: per leaf, the emitter nearest the
     leaf's area-weighted centre (its representative) stands for every emitter of the leaf

@@ -11,11 +11,10 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from ..constants import FASTMATH
 from . import warps
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", parallel=True)
+@njit(cache=True, error_model="numpy", parallel=True)
 def support_values(vertices, normals, out_h, out_arg):
     """h(m) = max_v m.v and its argmax for every row m of ``normals`` (k, 3)."""
     for k in prange(normals.shape[0]):
@@ -31,7 +30,7 @@ def support_values(vertices, normals, out_h, out_arg):
         out_arg[k] = arg
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _lifted(vertices, v, wx, wy, wz, t1, t2, big, low):
     """Vertex v (or artificial point -1..-3) as (b_x, b_y, a): its components across and
     along w. The artificial points are a big triangle around the axis, very low in a."""
@@ -46,7 +45,7 @@ def _lifted(vertices, v, wx, wy, wz, t1, t2, big, low):
     )
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy")
+@njit(cache=True, error_model="numpy")
 def _bary(px, py, x, y):
     """Barycentric coordinates of (x, y) in the triangle (px, py)[:3]."""
     det = (px[1] - px[0]) * (py[2] - py[0]) - (px[2] - px[0]) * (py[1] - py[0])
@@ -57,7 +56,7 @@ def _bary(px, py, x, y):
     return 1.0 - l1 - l2, l1, l2, True
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy")
+@njit(cache=True, error_model="numpy")
 def _hull_simplex(vertices, pool, w, t1, t2, big, low, tol, basis, lam, max_iter):
     """Simplex method for max t s.t. t w = sum lam_v v, sum lam_v = 1, lam >= 0 over the
     vertices ``pool``, starting from the feasible ``basis`` (3 vertex indices, negative =
@@ -114,7 +113,7 @@ def _hull_simplex(vertices, pool, w, t1, t2, big, low, tol, basis, lam, max_iter
 
 
 # not parallel: a few ms per thousand directions, less than the parfor compile (~1 s)
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy")
+@njit(cache=True, error_model="numpy")
 def hull_distances(dirs, candidates, vertices, out):
     """Distance r0 from the origin along each unit row of ``dirs`` to the boundary of the
     convex hull of ``vertices``: max t such that t w lies in conv(vertices).

@@ -15,7 +15,6 @@ import math
 import numpy as np
 from numba import njit
 
-from ..constants import FASTMATH
 from . import rng, warps
 
 KIND_CODES = {"distant": 0, "point": 1, "spot": 2, "sphere": 3, "rect": 4, "disk": 5, "dome": 6}
@@ -44,12 +43,12 @@ REACH_OK, REACH_BEHIND, REACH_CONE, REACH_RANGE, REACH_NONE = range(5)
 _TWO_PI = 2.0 * math.pi
 
 
-@njit(cache=True, fastmath=FASTMATH, inline="always")
+@njit(cache=True, inline="always")
 def _dot(ax, ay, az, bx, by, bz):
     return ax * bx + ay * by + az * bz
 
 
-@njit(cache=True, fastmath=FASTMATH, nogil=True)
+@njit(cache=True, nogil=True)
 def reach_code(kind, p, x, y, z, nx, ny, nz):
     """Whether the light row ``p`` can light a receiver at (x, y, z) with unit normal n:
     REACH_OK, else the first failing test of range, tangent plane (or emitting side),
@@ -102,7 +101,7 @@ def reach_code(kind, p, x, y, z, nx, ny, nz):
     return REACH_BEHIND
 
 
-@njit(cache=True, fastmath=FASTMATH, nogil=True)
+@njit(cache=True, nogil=True)
 def _cone_direction(ax, ay, az, cos_max, u0, u1):
     """Uniform direction in the cone of half-angle acos(cos_max) about unit a."""
     c = 1.0 - u0 * (1.0 - cos_max)
@@ -112,7 +111,7 @@ def _cone_direction(ax, ay, az, cos_max, u0, u1):
     return warps.to_world(x, y, c, ax, ay, az)
 
 
-@njit(cache=True, fastmath=FASTMATH, nogil=True)
+@njit(cache=True, nogil=True)
 def sample_light(kind, p, ox, oy, oz, nx, ny, nz, u0, u1):
     """One sample of light row ``p`` seen from o with unit normal n.
 
@@ -200,7 +199,7 @@ def sample_light(kind, p, ox, oy, oz, nx, ny, nz, u0, u1):
     return vr * math.pi, vg * math.pi, vb * math.pi, dx, dy, dz, np.inf
 
 
-@njit(cache=True, fastmath=FASTMATH, nogil=True)
+@njit(cache=True, nogil=True)
 def sample_emitter(ox, oy, oz, nx, ny, nz, u0, u1, pos, faces, tris, cdf, emission, lum_total, shorten):
     """One sample of the emitting triangles, chosen by area x emission (``cdf`` over
     ``tris``); a triangle emits on the side its winding's normal points to, as rect
@@ -254,7 +253,7 @@ def component_keys(vertex_key, n_components):
     return out
 
 
-@njit(cache=True, fastmath=FASTMATH, nogil=True)
+@njit(cache=True, nogil=True)
 def direct_samples(
     vertex_index, points, origins, normals, keys, kinds, params, j_lo, j_hi, reach,
     pos, faces, tris, cdf, emission, lum_total, shorten, scale, far_cap, sums, squares,
@@ -368,7 +367,7 @@ def start_paths(vertices, per, origins, normals, scale, vertex_of, path_org, pat
                 value_i[p, k] = 0.0
 
 
-@njit(cache=True, fastmath=FASTMATH, nogil=True)
+@njit(cache=True, nogil=True)
 def bounce_directions(path_org, path_normal, alive, keys, vertex_of, index_of, depth, inv_scale, out_live, out_org, out_dir):
     """Rays of the live paths, compacted: ``out_live[r]`` the path, its origin (float32,
     Embree's frame) and a cosine-weighted direction about its normal. Path p is sample
@@ -404,7 +403,7 @@ def bounce_directions(path_org, path_normal, alive, keys, vertex_of, index_of, d
     return m
 
 
-@njit(cache=True, fastmath=FASTMATH, nogil=True)
+@njit(cache=True, nogil=True)
 def follow_hits(
     live, m, prim, org, dirs, scale, points, faces, path_org, path_normal, throughput, value, alive,
     face_normals, face_albedo, dome, offset, continue_paths,
@@ -452,7 +451,7 @@ def follow_hits(
             alive[p] = False
 
 
-@njit(cache=True, fastmath=FASTMATH, nogil=True)
+@njit(cache=True, nogil=True)
 def hit_samples(
     alive, path_org, path_normal, throughput, keys, vertex_of, index_of, depth,
     kinds, params, has_emitters, pos, faces, tris, cdf, emission, lum_total, shorten, inv_scale, far_cap,

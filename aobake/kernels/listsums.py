@@ -58,14 +58,14 @@ class Site(NamedTuple):
     thresholds: tuple
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def site(px, py, pz, nx, ny, nz, has_normal, measure, gate, max_d2, min_d2, leveled, wr2):
     """:class:`Site` of a receiver (``wr2``: the (N_BINS,) float32 level thresholds)."""
     return Site(px, py, pz, nx, ny, nz, has_normal, measure, gate, max_d2, min_d2, leveled,
                 (wr2[0], wr2[1], wr2[2], wr2[3], wr2[4], wr2[5]))
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def sum_list(buf, n, at, term, add, acc, how):
     """``acc`` after ``add(acc, f, b, buf, j, d, r2, how)`` for the term ``(f, b) =
     term(buf, j, d, r2, at)`` of every list entry j < n (d: entry - receiver). The near
@@ -80,7 +80,7 @@ def sum_list(buf, n, at, term, add, acc, how):
     return acc
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def sum_far(far, n_far, at, add, acc, how):
     """:func:`sum_list` over the far list (gated moments when ``at.gate > 0``)."""
     if at.gate > ZERO32:
@@ -88,7 +88,7 @@ def sum_far(far, n_far, at, add, acc, how):
     return sum_list(far, n_far, at, far_node_term, add, acc, how)
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def sum_near(near, n_near, at, add, acc, how):
     """:func:`sum_list` over the near list's disks, near-field ones included (the caller
     swaps those for their cells), with the term of the case: cosine measure at a
@@ -113,19 +113,19 @@ def sum_near(near, n_near, at, add, acc, how):
 # totals
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def add_sides(acc, f, b, buf, j, dx, dy, dz, r2, how):
     """(front, back) totals."""
     return acc[0] + f, acc[1] + b
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def far_sums(far, n_far, at):
     """(front, back) of the far list at receiver ``at``; vectorises."""
     return sum_far(far, n_far, at, add_sides, (ZERO32, ZERO32), ())
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def near_disk_sums(near, n_near, at):
     """(front, back) of the near list's disks at receiver ``at`` (:func:`sum_near`); the
     loop vectorises (16 float32 lanes with AVX-512)."""
@@ -136,7 +136,7 @@ def near_disk_sums(near, n_near, at):
 # by direction (per-direction saturation)
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def tents(dx, dy, dz, d2, frame, nx, ny, nz):
     """``(up, low, (a_0 .. a_7))``: the band shares and every sector's share of direction
     d (``bunnell.sector_coords``: the pole share evenly, the rest by ``bunnell.tent``;
@@ -159,7 +159,7 @@ def tents(dx, dy, dz, d2, frame, nx, ny, nz):
     return up, low, a
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def dir_add(acc, v, up, low, a):
     """One side's term v added to its 16 direction accumulators (upper band sectors
     0..7, then the lower band), spread as ``bunnell.add_directions`` spreads it; a tuple
@@ -172,7 +172,7 @@ def dir_add(acc, v, up, low, a):
     )
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def dir_term(sf, sb, wf, wb, f, b, area, dx, dy, dz, d2, frame, nx, ny, nz):
     """One (front, back) term of an emitter of area A in direction d added to the
     direction accumulators ``sf``, ``sb`` (:func:`dir_add`), or whole to ``wf``, ``wb``
@@ -187,7 +187,7 @@ def dir_term(sf, sb, wf, wb, f, b, area, dx, dy, dz, d2, frame, nx, ny, nz):
     return dir_add(sf, f, up, low, a), dir_add(sb, b, up, low, a), wf, wb
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def add_directed(acc, f, b, buf, j, dx, dy, dz, r2, how):
     """``acc = (sf, sb, wf, wb)`` after :func:`dir_term`; ``how = (row, frame, nx, ny,
     nz)``, ``buf[row, j]`` the entry's area."""
@@ -221,7 +221,7 @@ def direction_sums(near, n_near, far, n_far, px, py, pz, nx, ny, nz, frame, max_
 # by distance
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def bin_add(acc, f, b, d2, dx, dy, dz, r0, r1, r2, r3, r4):
     """One term added to the binned accumulators ``acc`` (15 float32: front per bin,
     back per bin, then the first moment): bin k takes it when ``d2 < r_k`` (the last bin
@@ -241,14 +241,14 @@ def bin_add(acc, f, b, d2, dx, dy, dz, r0, r1, r2, r3, r4):
     )
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def add_binned(acc, f, b, buf, j, dx, dy, dz, r2, how):
     """:func:`bin_add`; ``how``: the bins' squared radii but the last."""
     r0, r1, r2_, r3, r4 = how
     return bin_add(acc, f, b, r2, dx, dy, dz, r0, r1, r2_, r3, r4)
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def binned_sums(near, n_near, far, n_far, at, br2, acc, first):
     """Like :func:`near_disk_sums` plus :func:`far_sums`, but cumulative by distance:
     ``acc[side, b] += term`` for every bin b with ``r^2 < br2[b]`` (the last bin takes
@@ -272,7 +272,8 @@ def binned_sums(near, n_near, far, n_far, at, br2, acc, first):
 
 
 # ---------------------------------------------------------------------------------------
-# the same, compiled apart (treepass.hierarchy_pass_apart: a fraction of the compile time)
+# the same, compiled apart (treepass.hierarchy_pass_apart: a fraction of the compile time),
+# with fastmath: their loops vectorise
 
 
 @njit(cache=True, fastmath=FASTMATH, error_model="numpy")

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from aobake.constants import COINCIDENT_REL, FASTMATH, MEASURE_COSINE
+from aobake.constants import COINCIDENT_REL, MEASURE_COSINE
 
 from .bunnell import HALF32, N_BINS, NO_NORMAL_COSINE, NO_NORMAL_UNIFORM, PI32, ZERO32, disk_pair32
 from .treewalk import (
@@ -41,7 +41,7 @@ from .treewalk import (
 assert N_BINS == 6, "update level_weight and listsums.bin_add for the new PASS_RADII"
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def far_terms(wa, mx, my, mz, txx, tyy, tzz, txy, txz, tyz, dx, dy, dz, d2, nx, ny, nz,
               has_normal, measure):
     """(front, back) of a far node with moments ``A_w = wa``, ``N = (mx, my, mz)``,
@@ -79,7 +79,7 @@ def far_terms(wa, mx, my, mz, txx, tyy, tzz, txy, txz, tyz, dx, dy, dz, d2, nx, 
     return c * max(HALF32 * (spread + s), max(s, ZERO32)), c * max(HALF32 * (spread - s), max(-s, ZERO32))
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def far_pair(far, j, dx, dy, dz, d2, nx, ny, nz, has_normal, measure):
     """(front, back) of far-list node j (:func:`far_terms` on its moments)."""
     return far_terms(
@@ -89,7 +89,7 @@ def far_pair(far, j, dx, dy, dz, d2, nx, ny, nz, has_normal, measure):
     )
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def gate32(ox, oy, oz, px, py, pz, nx, ny, nz, d2, gate, has_normal):
     """float32 ``bunnell.gate_factor`` from the squared distance ``d2``."""
     h = nx * (ox - px) + ny * (oy - py) + nz * (oz - pz)
@@ -97,7 +97,7 @@ def gate32(ox, oy, oz, px, py, pz, nx, ny, nz, d2, gate, has_normal):
     return g if has_normal else np.float32(1.0)
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def far_pair_gated(far, j, dx, dy, dz, d2, px, py, pz, nx, ny, nz, has_normal, measure, gate):
     """:func:`far_pair` with gated weights: the node's moments are ``M_l + (1 - g)
     (M_0 - M_l)`` (level l as listed, level 0 = unweighted), g the gate factor of the
@@ -123,7 +123,7 @@ def far_pair_gated(far, j, dx, dy, dz, d2, px, py, pz, nx, ny, nz, has_normal, m
 
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def level_weight(near, j, r2, t0, t1, t2, t3, t4, t5):
     """Area x weight of near-list emitter j at the weight level of ``r2`` (the N_BINS
     ascending float32 thresholds t0..t5). Written out as a chain of selects on scalars
@@ -139,7 +139,7 @@ def level_weight(near, j, r2, t0, t1, t2, t3, t4, t5):
     return wa
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def gated_weight(near, j, r2, wa, px, py, pz, nx, ny, nz, has_normal, gate):
     """Area x gated weight of near-list emitter j: ``A - (A - wa) g`` (``bunnell.gate_factor``
     of its occluder centroid)."""
@@ -148,7 +148,7 @@ def gated_weight(near, j, r2, wa, px, py, pz, nx, ny, nz, has_normal, gate):
     return near[S_A, j] - (near[S_A, j] - wa) * g
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def near_weight(near, j, r2, t, px, py, pz, nx, ny, nz, has_normal, gate):
     """Area x weight of near-list emitter j at distance^2 ``r2`` (leveled passes; ``t``:
     the N_BINS float32 level thresholds), gated when ``gate > 0``; branches."""
@@ -158,7 +158,7 @@ def near_weight(near, j, r2, t, px, py, pz, nx, ny, nz, has_normal, gate):
     return wa
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def near_pair(near, j, dx, dy, dz, r2, t, px, py, pz, nx, ny, nz, has_normal, measure, gate,
               max_d2, min_d2):
     """(front, back) of near-list disk j at the receiver (any measure, with or without a
@@ -175,7 +175,7 @@ def near_pair(near, j, dx, dy, dz, r2, t, px, py, pz, nx, ny, nz, has_normal, me
     )
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def cosine_pair(near, j, dx, dy, dz, r2, wa, nx, ny, nz, max_d2, min_d2):
     """(front, back) of near-list disk j for a receiver with a normal, cosine measure
     (``disk_pair32`` spelled out with selects: a branch would stop the caller's loop
@@ -197,34 +197,34 @@ def cosine_pair(near, j, dx, dy, dz, r2, wa, nx, ny, nz, max_d2, min_d2):
 # one signature for every list term: (buf, j, d, r2, at) -> (front, back)
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def far_node_term(far, j, dx, dy, dz, r2, at):
     """:func:`far_pair` of far-list node j."""
     return far_pair(far, j, dx, dy, dz, r2, at.nx, at.ny, at.nz, at.has_normal, at.measure)
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def gated_far_term(far, j, dx, dy, dz, r2, at):
     """:func:`far_pair_gated` of far-list node j."""
     return far_pair_gated(far, j, dx, dy, dz, r2, at.px, at.py, at.pz, at.nx, at.ny, at.nz,
                           at.has_normal, at.measure, at.gate)
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def disk_term(near, j, dx, dy, dz, r2, at):
     """:func:`near_pair` of near-list disk j (any measure and weights; branches)."""
     return near_pair(near, j, dx, dy, dz, r2, at.thresholds, at.px, at.py, at.pz, at.nx, at.ny, at.nz,
                      at.has_normal, at.measure, at.gate, at.max_d2, at.min_d2)
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def flat_cosine_term(near, j, dx, dy, dz, r2, at):
     """:func:`cosine_pair` of near-list disk j with its level-0 weight (pass 1)."""
     return cosine_pair(near, j, dx, dy, dz, r2, near[S_WA, j], at.nx, at.ny, at.nz, at.max_d2,
                        at.min_d2)
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def leveled_cosine_term(near, j, dx, dy, dz, r2, at):
     """:func:`cosine_pair` of near-list disk j with the weight of its level."""
     t0, t1, t2, t3, t4, t5 = at.thresholds
@@ -232,7 +232,7 @@ def leveled_cosine_term(near, j, dx, dy, dz, r2, at):
     return cosine_pair(near, j, dx, dy, dz, r2, wa, at.nx, at.ny, at.nz, at.max_d2, at.min_d2)
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def gated_cosine_term(near, j, dx, dy, dz, r2, at):
     """:func:`cosine_pair` of near-list disk j with the gated weight of its level."""
     t0, t1, t2, t3, t4, t5 = at.thresholds
@@ -242,7 +242,7 @@ def gated_cosine_term(near, j, dx, dy, dz, r2, at):
     return cosine_pair(near, j, dx, dy, dz, r2, wa, at.nx, at.ny, at.nz, at.max_d2, at.min_d2)
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def select_cosine_term(near, j, dx, dy, dz, r2, at):
     """:func:`cosine_pair` of near-list disk j, its level chosen by a select on
     ``at.leveled`` (thresholds are inf without levels: level 0, the loads unused)."""

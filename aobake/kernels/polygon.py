@@ -24,22 +24,22 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from aobake.constants import FASTMATH, MEASURE_COSINE, NEAR_PLANE_REL
+from aobake.constants import MEASURE_COSINE, NEAR_PLANE_REL
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _unit(x, y, z):
     inv = 1.0 / np.sqrt(x * x + y * y + z * z)
     return x * inv, y * inv, z * inv
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _minus(a, row, x, y, z):
     """``a[row] - (x, y, z)`` as three scalars."""
     return a[row, 0] - x, a[row, 1] - y, a[row, 2] - z
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _edge_term(ax, ay, az, bx, by, bz, nx, ny, nz):
     """Lambert's term of one edge between unit directions a and b: ``gamma n.(a x b) / |a x b|``
     with ``gamma`` the angle between them (0 for a zero-length edge)."""
@@ -53,7 +53,7 @@ def _edge_term(ax, ay, az, bx, by, bz, nx, ny, nz):
     return np.arctan2(s, t) / s * (nx * cx + ny * cy + nz * cz)
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _fan_term(ax, ay, az, bx, by, bz, cx, cy, cz):
     """Signed solid angle of the spherical triangle of unit directions a, b, c
     (van Oosterom-Strackee): ``2 atan2(a.(b x c), 1 + a.b + b.c + c.a)``."""
@@ -62,7 +62,7 @@ def _fan_term(ax, ay, az, bx, by, bz, cx, cy, cz):
     return 2.0 * np.arctan2(num, den)
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def clipped_quad(px, py, pz, nx, ny, nz, q, measure):
     """Occlusion of receiver (p, n) by the planar quad ``q`` clipped to ``n.(x - p) >= 0``.
 
@@ -124,7 +124,7 @@ def clipped_quad(px, py, pz, nx, ny, nz, q, measure):
     return abs(acc) / (2.0 * np.pi)
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def cell_terms(positions, corner_start, corners, j, px, py, pz, nx, ny, nz, measure, quad):
     """Occlusion of receiver (p, n) by the barycentric cell of vertex j, split by side.
 

@@ -10,8 +10,6 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from ..constants import FASTMATH
-
 #: Cube faces as (major axis, sign, u axis, v axis), the same layout as kernels/field_eval.py.
 FACE_AXIS = np.array([0, 0, 1, 1, 2, 2], dtype=np.int64)
 FACE_SIGN = np.array([1.0, -1.0, 1.0, -1.0, 1.0, -1.0])
@@ -21,7 +19,7 @@ FACE_V = np.array([2, 2, 0, 0, 1, 1], dtype=np.int64)
 _MAX_POLY = 8  # a triangle clipped by 4 planes has at most 7 corners
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def major_face(x, y, z):
     """Cube face index of direction (x, y, z); -1 for the zero vector."""
     ax, ay, az = abs(x), abs(y), abs(z)
@@ -34,7 +32,7 @@ def major_face(x, y, z):
     return 4 if z > 0.0 else 5
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy")
+@njit(cache=True, error_model="numpy")
 def _fill_polygon(px, py, n, size, cover, face):
     """Mark texels of ``cover[face]`` whose centres lie in the convex polygon (px, py)[:n]
     (texel units: texel i spans [i, i + 1]); edges inclusive, so shared edges leave no gap."""
@@ -69,7 +67,7 @@ def _fill_polygon(px, py, n, size, cover, face):
                 cover[face, i, j] = 1
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy")
+@njit(cache=True, error_model="numpy")
 def _clip_to_face(tri, face, ax, ay, az, bx, by, bz):
     """Clip triangle ``tri`` (3, 3) against the frustum of ``face``: the 4 planes
     w >= |u|, w >= |v| through the eye (w = sign * q[axis]). Returns the polygon in
@@ -105,7 +103,7 @@ def _clip_to_face(tri, face, ax, ay, az, bx, by, bz):
     return n
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _project(x, y, z, half):
     """Face of (x, y, z) and its texel coordinates on that face (-1 for the zero vector)."""
     f = major_face(x, y, z)
@@ -121,7 +119,7 @@ def _project(x, y, z, half):
     return -1, 0.0, 0.0
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _fill_triangle(x0, y0, x1, y1, x2, y2, size, cover, face):
     """Mark texels of ``cover[face]`` whose centres lie in a triangle (texel units)."""
     xmin = min(x0, min(x1, x2))
@@ -151,7 +149,7 @@ def _fill_triangle(x0, y0, x1, y1, x2, y2, size, cover, face):
                 cover[face, i, j] = 1
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy")
+@njit(cache=True, error_model="numpy")
 def _render_point(vertices, faces, p, size, vface, vuv, cover, poly):
     """Rasterize all triangles around point ``p`` (3,) into ``cover`` (6, S, S)."""
     half = 0.5 * size
@@ -194,7 +192,7 @@ def _render_point(vertices, faces, p, size, vface, vuv, cover, poly):
                 _fill_polygon(px, py, m, size, cover, face)
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", parallel=True)
+@njit(cache=True, error_model="numpy", parallel=True)
 def render_points(vertices, faces, points, texel_weights, texel_vectors, block, out):
     """Omega and int V w dw at every point by cube-map rasterization.
 

@@ -9,11 +9,11 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ..constants import FASTMATH, MEASURE_COSINE
+from ..constants import MEASURE_COSINE
 from . import rng, warps
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", nogil=True)
+@njit(cache=True, error_model="numpy", nogil=True)
 def generate_rays(origins, normals, keys, vertex_index, j0, j1, mode, out_org, out_dir):
     """Fill rays j0..j1-1 of every vertex in ``vertex_index``, vertex-major.
 

@@ -5,10 +5,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ..constants import FASTMATH
 
-
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy")
+@njit(cache=True, error_model="numpy")
 def rasterize(screen, faces, values, depth, image, row0):
     """Draw triangles into ``image`` with a depth test, interpolating ``values``.
 

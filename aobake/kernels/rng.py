@@ -10,13 +10,11 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ..constants import FASTMATH
-
 _M32 = np.uint64(0xFFFFFFFF)
 _INV32 = 1.0 / 4294967296.0
 
 
-@njit(cache=True, fastmath=FASTMATH, inline="always")
+@njit(cache=True, inline="always")
 def mix64(x):
     """SplitMix64 finaliser: a bijective avalanche on 64-bit words."""
     x = np.uint64(x)
@@ -28,13 +26,13 @@ def mix64(x):
     return x
 
 
-@njit(cache=True, fastmath=FASTMATH, inline="always")
+@njit(cache=True, inline="always")
 def hash2(a, b):
     """Hash of two 64-bit counters (order matters)."""
     return mix64(np.uint64(a) ^ mix64(np.uint64(b) + np.uint64(0x9E3779B97F4A7C15)))
 
 
-@njit(cache=True, fastmath=FASTMATH, inline="always")
+@njit(cache=True, inline="always")
 def reverse_bits32(x):
     """Reverse the low 32 bits of ``x`` (a uint64 holding a 32-bit word)."""
     x = np.uint64(x) & _M32
@@ -56,7 +54,7 @@ def reverse_bits32(x):
     return x & _M32
 
 
-@njit(cache=True, fastmath=FASTMATH, inline="always")
+@njit(cache=True, inline="always")
 def owen_permute_reversed(x, seed):
     """Hash-based nested uniform permutation of a bit-reversed 32-bit word.
 
@@ -75,13 +73,13 @@ def owen_permute_reversed(x, seed):
     return x
 
 
-@njit(cache=True, fastmath=FASTMATH, inline="always")
+@njit(cache=True, inline="always")
 def owen_scramble32(x, seed):
     """Owen-scramble a 32-bit fixed-point fraction ``x`` with ``seed``."""
     return reverse_bits32(owen_permute_reversed(reverse_bits32(x), seed))
 
 
-@njit(cache=True, fastmath=FASTMATH, inline="always")
+@njit(cache=True, inline="always")
 def sobol2_32(index):
     """First two dimensions of the Sobol sequence as 32-bit fractions.
 
@@ -101,13 +99,13 @@ def sobol2_32(index):
     return x0, x1
 
 
-@njit(cache=True, fastmath=FASTMATH, inline="always")
+@njit(cache=True, inline="always")
 def scramble_seeds(key):
     """The two per-dimension Owen seeds of a sequence keyed by ``key``."""
     return hash2(key, 0) & _M32, hash2(key, 1) & _M32
 
 
-@njit(cache=True, fastmath=FASTMATH, inline="always")
+@njit(cache=True, inline="always")
 def scrambled_sobol2_seeded(index, s0, s1):
     """Point ``index`` of the 2-D Sobol sequence Owen-scrambled with seeds (s0, s1)."""
     x0, x1 = sobol2_32(index)
@@ -116,14 +114,14 @@ def scrambled_sobol2_seeded(index, s0, s1):
     return u0, u1
 
 
-@njit(cache=True, fastmath=FASTMATH, inline="always")
+@njit(cache=True, inline="always")
 def scrambled_sobol2(index, key):
     """Point ``index`` of a 2-D Owen-scrambled Sobol sequence keyed by ``key``, in [0, 1)^2."""
     s0, s1 = scramble_seeds(key)
     return scrambled_sobol2_seeded(index, s0, s1)
 
 
-@njit(cache=True, fastmath=FASTMATH, inline="always")
+@njit(cache=True, inline="always")
 def random2(index, key):
     """Two independent uniform numbers in [0, 1) from (key, index): plain random, no strata."""
     h = hash2(key, np.uint64(index) + np.uint64(0x632BE59BD9B4E019))

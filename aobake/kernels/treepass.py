@@ -53,7 +53,7 @@ CELL_SLACK = 1e-9
 SCHEDULE_BLOCK = 64
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def add_cumulative(acc, f, b, r2, br2, binned):
     """``acc[:, k] += (f, b)`` for every bin k the distance ``r2`` falls inside (all bins
     from its own on), or the last bin only when not ``binned``."""
@@ -132,7 +132,7 @@ def hierarchy_pass_apart(tree, emitters, receivers, near_field, buckets, span, o
                far_sums_apart, near_disk_sums_apart, binned_sums_apart)
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _tree_pass(tree, emitters, receivers, near_field, buckets, span, options, out, first, fill,
                far_fn, near_fn, binned_fn):
     """The body of :func:`hierarchy_pass`; the list sums ``far_fn``, ``near_fn``,

@@ -15,8 +15,6 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from aobake.constants import FASTMATH
-
 from .bunnell import N_LEVELS, level_of
 from .hierarchy import (
     E_AREA,
@@ -83,7 +81,7 @@ B_X, B_Y, B_Z, B_RADIUS, B_INNER, B_NX, B_NY, B_NZ, B_SPREAD, B_HEIGHT = range(1
 BOUND_COLS = 10
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy")
+@njit(cache=True, error_model="numpy")
 def bucket_bounds(points, normals, inner, order, bucket_start, out):
     """Bounds of each bucket's receivers, ``out[b]`` (columns B_X..B_HEIGHT): centre
     (mean), bounding radius, largest inner radius, and the cone of their normals with
@@ -156,7 +154,7 @@ def bucket_bounds(points, normals, inner, order, bucket_start, out):
         out[b, B_HEIGHT] = np.inf if normal_less or norm == 0.0 else height
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def behind(bound, ex, ey, ez, e):
     """Offset (ex, ey, ez) = x - centre, of length e, lies behind every receiver's tangent
     plane of the bucket (``bucket_bounds``), by more than BEHIND_SLACK (relative): every
@@ -166,7 +164,7 @@ def behind(bound, ex, ey, ez, e):
     return h < -BEHIND_SLACK * (e + bound[B_RADIUS] + 1.0)
 
 
-@njit(cache=True, fastmath=FASTMATH, error_model="numpy")
+@njit(cache=True, error_model="numpy")
 def gather(tree, emitters, bound, options, near_buf, near_idx, far_buf):
     """Interaction lists of one bucket (centre, radius ``bound``): walk the tree once for
     all its receivers (``tree``: ``structures.TreeArrays``, ``emitters``:

@@ -11,12 +11,10 @@ import math
 
 from numba import njit
 
-from ..constants import FASTMATH
-
 INV_PI = 1.0 / math.pi
 
 
-@njit(cache=True, fastmath=FASTMATH, inline="always")
+@njit(cache=True, inline="always")
 def sincos_quarter(x):
     """(sin x, cos x) for |x| <= pi/4 by Taylor polynomials of degree 11 and 12.
 
@@ -51,7 +49,7 @@ def sincos_quarter(x):
     return s, c
 
 
-@njit(cache=True, fastmath=FASTMATH, inline="always")
+@njit(cache=True, inline="always")
 def square_to_uniform_disk_concentric(u0, u1):
     """Shirley-Chiu concentric map: area-preserving, keeps strata compact.
 
@@ -69,7 +67,7 @@ def square_to_uniform_disk_concentric(u0, u1):
     return b * s, b * c
 
 
-@njit(cache=True, fastmath=FASTMATH, inline="always")
+@njit(cache=True, inline="always")
 def square_to_cosine_hemisphere(u0, u1):
     """Cosine-weighted direction about +z (Malley's method on the concentric disk)."""
     x, y = square_to_uniform_disk_concentric(u0, u1)
@@ -77,13 +75,13 @@ def square_to_cosine_hemisphere(u0, u1):
     return x, y, z
 
 
-@njit(cache=True, fastmath=FASTMATH, inline="always")
+@njit(cache=True, inline="always")
 def cosine_hemisphere_pdf(z):
     """pdf of :func:`square_to_cosine_hemisphere` per steradian at cos(theta) = z."""
     return max(z, 0.0) * INV_PI
 
 
-@njit(cache=True, fastmath=FASTMATH, inline="always")
+@njit(cache=True, inline="always")
 def square_to_uniform_hemisphere(u0, u1):
     """Uniform direction on the hemisphere about +z."""
     z = u0
@@ -92,13 +90,13 @@ def square_to_uniform_hemisphere(u0, u1):
     return r * math.cos(phi), r * math.sin(phi), z
 
 
-@njit(cache=True, fastmath=FASTMATH, inline="always")
+@njit(cache=True, inline="always")
 def uniform_hemisphere_pdf(z):
     """pdf of :func:`square_to_uniform_hemisphere` (1/2pi above the horizon)."""
     return 0.5 * INV_PI if z >= 0.0 else 0.0
 
 
-@njit(cache=True, fastmath=FASTMATH, inline="always")
+@njit(cache=True, inline="always")
 def square_to_uniform_sphere(u0, u1):
     """Uniform direction on the whole sphere."""
     z = 1.0 - 2.0 * u0
@@ -107,13 +105,13 @@ def square_to_uniform_sphere(u0, u1):
     return r * math.cos(phi), r * math.sin(phi), z
 
 
-@njit(cache=True, fastmath=FASTMATH, inline="always")
+@njit(cache=True, inline="always")
 def uniform_sphere_pdf():
     """pdf of :func:`square_to_uniform_sphere` (1/4pi)."""
     return 0.25 * INV_PI
 
 
-@njit(cache=True, fastmath=FASTMATH, inline="always")
+@njit(cache=True, inline="always")
 def frame(nx, ny, nz):
     """Two unit tangents (t, b) with (t, b, n) right-handed and orthonormal, n unit."""
     sign = 1.0 if nz >= 0.0 else -1.0
@@ -124,7 +122,7 @@ def frame(nx, ny, nz):
     return tx, ty, tz, bx, by, bz
 
 
-@njit(cache=True, fastmath=FASTMATH, inline="always")
+@njit(cache=True, inline="always")
 def to_world(x, y, z, nx, ny, nz):
     """Rotate local (x, y, z) about +z into the frame whose z axis is n."""
     tx, ty, tz, bx, by, bz = frame(nx, ny, nz)
