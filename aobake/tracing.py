@@ -59,24 +59,31 @@ class Tracer:
         from embreex import rtcore, rtcore_scene
         from embreex.mesh_construction import TriangleMesh
 
-        positions = np.asarray(positions, dtype=np.float64)
+        self._positions = positions = np.asarray(positions, dtype=np.float64)
         lo, hi = positions.min(axis=0), positions.max(axis=0)
         self.center = np.zeros(3) if recentred else 0.5 * (lo + hi)
-        self.local = positions - self.center
-        #: Largest recentred coordinate: the magnitude that sets float32 rounding.
-        self.magnitude = float(np.abs(self.local).max())
+        #: Largest recentred coordinate: the magnitude that sets float32 rounding. The
+        #: extremes of ``local`` are ``lo - center`` and ``hi - center`` (rounding is
+        #: monotonic), so no recentred copy is made for it.
+        self.magnitude = float(np.maximum(np.abs(lo - self.center), np.abs(hi - self.center)).max())
         #: Power of two the recentred coordinates are divided by before the cast.
         self.scale = power_of_two_scale(self.magnitude)
         if faces.size and faces.max() > np.iinfo(np.int32).max:
             raise InputError(None, f"{faces.max()} vertices exceed Embree's 32-bit indices")
         device = rtcore.EmbreeDevice()
         self._scene = rtcore_scene.EmbreeScene(device, robust=robust)
-        if not _upload(self._scene, device, self.local, self.scale, faces):
+        if not _upload(self._scene, device, positions, self.center, self.scale, faces):
             TriangleMesh(self._scene, self.frame(self.local), faces.astype(np.int32))
         # Commit now, on this thread: EmbreeScene.run commits lazily and is not safe to
         # commit from two worker threads at once.
         probe = np.zeros((1, 3), dtype=np.float32)
         self._scene.run(probe, np.array([[0, 0, 1]], dtype=np.float32), query="OCCLUDED")
+
+    @property
+    def local(self) -> np.ndarray:
+        """(n, 3) float64: the positions minus ``center``, made on each access (not kept:
+        24 bytes per vertex)."""
+        return self._positions - self.center
 
     def frame(self, points: FloatArray) -> np.ndarray:
         """Recentred points (mesh units, float64) as the float32 points Embree takes."""
@@ -122,6 +129,7 @@ class Tracer:
 _GEOMETRY_TRIANGLE, _BUFFER_INDEX, _BUFFER_VERTEX = 0, 0, 1
 _FORMAT_UINT3, _FORMAT_FLOAT3 = 0x5003, 0x9003
 _api = None
+_BLOCK = 1 << 16  # rows per block of the vertex upload
 
 
 def _embree_api():
@@ -178,10 +186,11 @@ def _embree_api():
     return _api
 
 
-def _upload(scene, device, local: np.ndarray, scale: float, faces: np.ndarray) -> bool:
-    """Fill a fresh embreex scene (made on ``device``) with the triangles (``local / scale`` as float32, the
-    values ``TriangleMesh`` would copy) through Embree's own buffers; False where
-    :func:`_embree_api` declines (the caller then uses ``TriangleMesh``)."""
+def _upload(scene, device, positions: np.ndarray, center, scale: float, faces: np.ndarray) -> bool:
+    """Fill a fresh embreex scene (made on ``device``) with the triangles, vertices
+    ``(positions - center) / scale`` cast to float32 (the values ``TriangleMesh`` would
+    copy), through Embree's own buffers; False where :func:`_embree_api` declines (the
+    caller then uses ``TriangleMesh``)."""
     import ctypes
 
     api = _embree_api()
@@ -196,14 +205,16 @@ def _upload(scene, device, local: np.ndarray, scale: float, faces: np.ndarray) -
     if not geom:
         return False
     try:
-        n, m = local.shape[0], faces.shape[0]
+        n, m = positions.shape[0], faces.shape[0]
         vbuf = lib.rtcSetNewGeometryBuffer(geom, _BUFFER_VERTEX, 0, _FORMAT_FLOAT3, 16, n)
         ibuf = lib.rtcSetNewGeometryBuffer(geom, _BUFFER_INDEX, 0, _FORMAT_UINT3, 12, m)
         if (n and not vbuf) or (m and not ibuf):
             raise MemoryError(f"Embree could not allocate buffers for {n} vertices and {m} triangles")
         if n:
             v = np.ctypeslib.as_array((ctypes.c_float * (4 * n)).from_address(vbuf)).reshape(n, 4)
-            np.divide(local, scale, out=v[:, :3], casting="same_kind")
+            for a in range(0, n, _BLOCK):  # in blocks: no full-size float64 temporary
+                b = min(a + _BLOCK, n)
+                v[a:b, :3] = (positions[a:b] - center) / scale
             v[:, 3] = 0.0
         if m:
             t = np.ctypeslib.as_array((ctypes.c_uint32 * (3 * m)).from_address(ibuf)).reshape(m, 3)

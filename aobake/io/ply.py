@@ -75,7 +75,10 @@ def read_parts(path: Path, data: bytes, metadata: dict | None = None) -> list[Ra
         if corners.dtype.kind == "f" and not (corners == np.round(corners)).all():
             raise InputError(path, f"cannot read as PLY: face {key!r} holds non-integer indices")
         corners = corners.astype(np.int64)
-    faces = fan_triangulate(counts, corners)
+    if counts.size and corners.size == 3 * counts.size and (counts == 3).all():
+        faces = corners.reshape(-1, 3)  # all triangles: the polygons' own array, no copy
+    else:
+        faces = fan_triangulate(counts, corners)
     return [RawPart(path.stem, positions, faces, normals, counts, corners)]
 
 

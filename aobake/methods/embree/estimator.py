@@ -218,6 +218,7 @@ def estimate(
         origins, contacts = contact_origins(surface, tracer, offsets, edges)
     else:
         origins, contacts = tracer.frame(tracer.local + offsets[:, None] * surface.normals), 0
+    del edges, offsets  # freed before the rays (memory)
     normals = np.ascontiguousarray(surface.normals, dtype=np.float64)
     keys = _k.vertex_keys(np.uint64(options.seed), n)
     mode = MEASURE_CODES[options.measure] + (0 if stratified else 2)
