@@ -33,6 +33,8 @@ class Tracer:
         Embree's robust traversal (watertight at shared edges; slower).
     recentred : bool
         The positions are already in their local frame (``center`` is then 0).
+    deferred : bool
+        Do not build the Embree scene yet (:meth:`build`).
 
     Notes
     -----
@@ -55,10 +57,8 @@ class Tracer:
         *,
         robust: bool = False,
         recentred: bool = False,
+        deferred: bool = False,
     ):
-        from embreex import rtcore, rtcore_scene
-        from embreex.mesh_construction import TriangleMesh
-
         self._positions = positions = np.asarray(positions, dtype=np.float64)
         lo, hi = positions.min(axis=0), positions.max(axis=0)
         self.center = np.zeros(3) if recentred else 0.5 * (lo + hi)
@@ -70,14 +70,36 @@ class Tracer:
         self.scale = power_of_two_scale(self.magnitude)
         if faces.size and faces.max() > np.iinfo(np.int32).max:
             raise InputError(None, f"{faces.max()} vertices exceed Embree's 32-bit indices")
+        self._faces, self._robust, self._embree = faces, robust, None
+        if not deferred:
+            self.build()
+
+    def build(self) -> Tracer:
+        """Hand the triangles to Embree and build its BVH, once. A tracer made with
+        ``deferred=True`` (its frame known, :attr:`local` and :meth:`frame` usable)
+        answers queries only after this, so a caller can free what it prepared from the
+        frame before Embree's memory (~170 bytes per vertex) is taken."""
+        if self._embree is not None:
+            return self
+        from embreex import rtcore, rtcore_scene
+        from embreex.mesh_construction import TriangleMesh
+
         device = rtcore.EmbreeDevice()
-        self._scene = rtcore_scene.EmbreeScene(device, robust=robust)
-        if not _upload(self._scene, device, positions, self.center, self.scale, faces):
-            TriangleMesh(self._scene, self.frame(self.local), faces.astype(np.int32))
+        scene = rtcore_scene.EmbreeScene(device, robust=self._robust)
+        if not _upload(scene, device, self._positions, self.center, self.scale, self._faces):
+            TriangleMesh(scene, self.frame(self.local), self._faces.astype(np.int32))
         # Commit now, on this thread: EmbreeScene.run commits lazily and is not safe to
         # commit from two worker threads at once.
         probe = np.zeros((1, 3), dtype=np.float32)
-        self._scene.run(probe, np.array([[0, 0, 1]], dtype=np.float32), query="OCCLUDED")
+        scene.run(probe, np.array([[0, 0, 1]], dtype=np.float32), query="OCCLUDED")
+        self._embree, self._faces = scene, None
+        return self
+
+    @property
+    def _scene(self):
+        if self._embree is None:
+            raise RuntimeError("Tracer(deferred=True) traces only after build()")
+        return self._embree
 
     @property
     def local(self) -> np.ndarray:
