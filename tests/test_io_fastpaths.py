@@ -98,6 +98,8 @@ def test_triangle_ply_shares_one_index_array_and_writes_back_same_bytes(tmp_path
     assert np.shares_memory(s.faces, s.parts[0].face_vertex_indices)
     assert np.shares_memory(s.faces, kept)
     assert np.shares_memory(s.positions, s.metadata["ply"].data.elements["vertex"].properties["x"])
+    counts = s.parts[0].face_vertex_counts
+    assert counts.shape == (len(tri),) and counts.strides == (0,) and (counts == 3).all()
     out = tmp_path / "out.ply"
     write_bake(out, s, np.full(len(pos), 0.5))
     back = read_ply(out).elements["vertex"].properties

@@ -81,6 +81,8 @@ def read_parts(path: Path, data: bytes, metadata: dict | None = None) -> list[Ra
             raise InputError(path, f"cannot read as PLY: face {key!r} holds non-integer indices")
         integral = corners.dtype.kind in "iu"
         corners = corners.astype(np.int64)
+        if counts.size and corners.size == 3 * counts.size and (counts == 3).all():
+            counts = np.broadcast_to(np.int64(3), counts.shape)  # read-only, no memory
         if integral and metadata is not None:
             # the kept list shares these exact values (writers cast to the declared type)
             face.properties[key] = PlyList(counts, corners)
