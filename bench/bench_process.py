@@ -58,7 +58,7 @@ SCENES = {
 STAGES = [
     ("read", ("read_parts", "load_mesh")),
     ("normals", ("angle_weighted_normals",)),
-    ("scene build", ("__init__@tracing.py",)),
+    ("scene build", ("build@tracing.py", "__init__@tracing.py")),  # build: since Tracer.build
     ("contacts", ("contact_origins", "contact_points")),
     ("rays + trace", ("trace_chunks",)),
     ("bunnell", ("run@bunnell",)),
