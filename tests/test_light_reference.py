@@ -306,3 +306,21 @@ def test_lazy_exports_and_defaults():
     assert (opts.n_samples, opts.bounces, opts.n_indirect, opts.tolerance) == (64, 1, 256, None)
     with pytest.raises(ValueError, match="bounces"):
         embree.LightOptions(bounces=-1)
+
+
+def test_last_bounce_ray_only_where_a_dome_can_be_seen():
+    """Inside a closed sphere lit by a light without shadows every path hits and its
+    next-event sample costs no ray: K bounces cast K rays a path, the K+1-th (it only
+    looks for the dome) only when there is a dome, which it then never sees."""
+    surface = sphere(1.0, 1, inward=True)
+    n, paths = surface.n_vertices, 8
+    point = Light.make("point", "p", (1, 1, 1), position=(0.1, 0.0, 0.0), shadow=False)
+    dome = Light.make("dome", "sky", (3, 3, 3))
+    for bounces in (1, 2):
+        plain = lit(surface, [point], bounces=bounces, n_indirect=paths, n_samples=4)
+        domed = lit(surface, [point, dome], bounces=bounces, n_indirect=paths, n_samples=4)
+        assert plain.n_bounce_rays == n * paths * bounces
+        assert domed.n_bounce_rays == n * paths * (bounces + 1)
+        for name in ("direct", "indirect", "error"):
+            assert np.array_equal(getattr(plain, name), getattr(domed, name)), name
+        assert plain.indirect.min() > 0

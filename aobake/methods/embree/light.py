@@ -256,14 +256,15 @@ def irradiance(
     sampled[n_lights] = has_emitters
     lit = bool(exact.any() or sampled.any() or np.any(dome > 0))
     bounces = options.bounces if shading.reflects and lit else 0
-    use_paths = bool(np.any(dome > 0)) or bounces > 0
+    sees_dome = bool(np.any(dome > 0))
+    use_paths = sees_dome or bounces > 0
 
     adaptive = options.tolerance is not None
     ends = _rounds(options.n_samples, adaptive)
     path_ends = [max(1, -(-options.n_indirect * j // options.n_samples)) for j in ends]
     per_vertex = int(sampled.sum()) * options.n_samples + int(exact.sum())
     if use_paths:
-        per_vertex += options.n_indirect * (1 + bounces * (1 + n_comp))
+        per_vertex += options.n_indirect * (bounces * (1 + n_comp) + (1 if sees_dome else 0))
     per_chunk = max(1, min(chunk_rays // max(per_vertex, 1), -(-n // (4 * threads))))
 
     sums = np.zeros((n, n_comp, 3))
@@ -340,9 +341,9 @@ def irradiance(
         for b in range(0, vidx.size, block):
             sub = vidx[b : b + block]
             count = sub.size * per
-            _kl.start_paths(sub, per, origins, normals, scale, vertex_of, path_org, path_normal, alive, throughput, value_d, value_i)
+            m = _kl.first_rays(sub, per, p0, origins, normals, keys, vertex_of, alive, throughput, value_d, value_i, live, org, dirs)
             rays += _trace_paths(
-                count, vertex_of, index_of, path_org, path_normal, alive, throughput, value_d, value_i,
+                count, m, vertex_of, index_of, path_org, path_normal, alive, throughput, value_d, value_i,
                 live, org, dirs, s_org, s_dir, s_far, s_w, s_row,
             )  # fmt: skip
             _kl.path_sums(value_d, value_i, per, sd[b : b + sub.size], si[b : b + sub.size], sq[b : b + sub.size])
@@ -354,17 +355,24 @@ def irradiance(
         return rays
 
     def _trace_paths(
-        count, vertex_of, index_of, path_org, path_normal, alive, throughput, value_d, value_i,
+        count, m, vertex_of, index_of, path_org, path_normal, alive, throughput, value_d, value_i,
         live, org, dirs, s_org, s_dir, s_far, s_w, s_row,
     ):  # fmt: skip
-        """Paths 0..count-1 of the buffers from their vertices to their end; the rays cast."""
+        """Paths 0..count-1 of the buffers, their m first rays written, to their end; the
+        rays cast."""
         rays = 0
         alive = alive[:count]
         for depth in range(bounces + 1):
-            m = _kl.bounce_directions(path_org, path_normal, alive, keys, vertex_of, index_of, depth, inv_scale, live, org, dirs)
+            if depth == bounces and not sees_dome:
+                break  # the last ray only looks for the dome: without one it adds nothing
+            if depth > 0:
+                m = _kl.bounce_directions(path_org, path_normal, alive, keys, vertex_of, index_of, depth, inv_scale, live, org, dirs)
             if m == 0:
                 break
-            prim = tracer.first_hits(org[:m], dirs[:m], options.max_distance)
+            if depth == bounces:  # escapes alone matter: Embree's cheaper any-hit query
+                prim = tracer.occluded(org[:m], dirs[:m], options.max_distance)
+            else:
+                prim = tracer.first_hits(org[:m], dirs[:m], options.max_distance)
             rays += m
             _kl.follow_hits(
                 live, m, prim, org, dirs, scale, points, faces, path_org, path_normal, throughput,
