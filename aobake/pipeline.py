@@ -451,17 +451,17 @@ def _bake_range(
             ao, n_rays, contacts, attributes = _compute(surface, method, options, progress, vertices, **_plane(ground))
         if light is not None and light.lit:
             attributes, totals = _compute_light(
-                surface, method, options, progress, vertices, (welded, inverse), selection, light, attributes
+                surface, method, options, progress, vertices, (welded, inverse), selection, light, attributes, ground
             )
         seconds = perf_counter() - t0 - watch.seconds
     lo, hi = (0, surface.n_vertices) if vertices is None else vertices
     return PartResult((lo, hi), ao, n_rays, contacts, seconds, watch.seconds, attributes, totals)
 
 
-def _compute_light(surface, method, options, progress, vertices, welding, selection, light, attributes):
+def _compute_light(surface, method, options, progress, vertices, welding, selection, light, attributes, ground=None):
     """A lit scene's irradiance attributes added to ``attributes``, on the scene the AO
     was traced on (``welding``: the AO's ``(welded surface, inverse)``, or Nones; the
-    occluders only); and the light's ray totals."""
+    occluders only) and under its ``ground`` plane; and the light's ray totals."""
     from . import lighting
 
     if vertices is not None and tuple(vertices) != (0, surface.n_vertices):
@@ -472,7 +472,9 @@ def _compute_light(surface, method, options, progress, vertices, welding, select
     if selection is not None and not selection.occluders.all():
         faces = selection.kept_faces(surface)
         scene = selection.scene(scene)
-    extra, totals = lighting.compute(light, scene, method, options, progress, faces=faces, inverse=inverse)
+    extra, totals = lighting.compute(
+        light, scene, method, options, progress, faces=faces, inverse=inverse, ground=ground
+    )
     return {**attributes, **extra}, totals
 
 

@@ -102,6 +102,11 @@ class Tracer:
         None: unbounded), -1 for none; ``origins`` as for :meth:`occluded`."""
         return self._scene.run(origins, directions, dists=float(self._dists(tfar)), query="INTERSECT")
 
+    def first_hits_within(self, origins, directions, dists: np.ndarray) -> np.ndarray:
+        """:meth:`first_hits` with per-ray lengths ``dists`` in Embree's frame, as for
+        :meth:`occluded_within`."""
+        return self._scene.run(origins, directions, dists=dists, query="INTERSECT")
+
     def intersect(self, origins, directions, tfar: np.ndarray) -> dict:
         """Closest hits: dict with ``primID`` (k,) int32 (-1 = miss), ``tfar`` (mesh
         units, float64), ``Ng`` (k, 3); ``origins`` as for :meth:`occluded`."""

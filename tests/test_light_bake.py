@@ -634,3 +634,18 @@ def test_obj_mtl_albedo_and_emission_in_the_lit_colour(runner, tmp_path):
     np.testing.assert_allclose(colour, _lit(albedo, e, -1.0, emission), atol=0.004)
     custom = _usd_custom(out)[0]
     assert custom["emitting_triangles"] == 2 and custom["lights"] == "none" and custom["exposure"] == -1.0
+
+
+def test_ground_occludes_a_lit_bake(runner, tmp_path):
+    """--ground on a lit bake: a lamp under the plane lights the box's underside without
+    it and nothing with it (shadow and bounce rays alike); the output records the plane."""
+    box = trimesh.creation.box((1.0, 1.0, 1.0))
+    box.apply_translation((0.0, 0.0, 1.0))
+    path = tmp_path / "box.ply"
+    box.export(path)
+    args = ["bake", path, *FEW, "-q", "--up", "Z", "--light", "point:0,0,-1:5"]
+    _ok(runner, [*args, "-o", tmp_path / "open.ply"])
+    _ok(runner, [*args, "-o", tmp_path / "ground.ply", "--ground", "0"])
+    assert _ply_columns(tmp_path / "open.ply", IRR).max() > 0
+    assert _ply_columns(tmp_path / "ground.ply", IRR).max() == 0
+    assert any("ground=0" in c for c in _ply_comments(tmp_path / "ground.ply"))

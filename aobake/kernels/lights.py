@@ -36,6 +36,11 @@ P_SHADOW = 23  # 1.0: casts shadow rays
 P_AREA = 24
 N_PARAMS = 25
 
+# The ground plane's row (``plane``): up axis (-1: no plane), height (recentred mesh
+# units), offset of a path's point on it (relative: eps x (magnitude + |point|)), albedo.
+G_AXIS, G_HEIGHT, G_EPS, G_MAGNITUDE, G_ALBEDO = 0, 1, 2, 3, 4
+G_SIZE = 7
+
 # Why a receiver is not lit by a light (reach codes).
 REACH_OK, REACH_BEHIND, REACH_CONE, REACH_RANGE, REACH_NONE = range(5)
 
@@ -431,16 +436,49 @@ def bounce_directions(path_org, path_normal, alive, keys, vertex_of, index_of, d
 @njit(cache=True, nogil=True)
 def follow_hits(
     live, m, prim, org, dirs, scale, points, faces, path_org, path_normal, throughput, value, alive,
-    face_normals, face_albedo, dome, offset, continue_paths,
+    face_normals, face_albedo, dome, offset, continue_paths, on_plane, plane,
 ):  # fmt: skip
     """After tracing rays 0..m-1 of the live paths ``live`` (first hits ``prim``): an
     escaping path adds throughput x pi L_dome to ``value`` and ends; a hit moves the
     path to the hit point (the ray met with the face's plane in float64, offset along
     the face normal turned to face the ray), takes the face's albedo into the
-    throughput and ends where that is zero or ``continue_paths`` is False."""
+    throughput and ends where that is zero or ``continue_paths`` is False.
+
+    ``plane``: the ground plane's row (:data:`G_AXIS` ...; axis -1: none). A ray Embree
+    missed with ``on_plane[r]`` set (:func:`ground_clip`) met the plane: the path moves
+    onto it (offset up), faces up and takes the plane's albedo."""
+    axis = int(plane[G_AXIS])
+    height = plane[G_HEIGHT]
     for r in range(m):
         p = live[r]
         f = prim[r]
+        if f < 0 and axis >= 0 and on_plane[r] != 0:
+            if not continue_paths:
+                alive[p] = False
+                continue
+            ox = np.float64(org[r, 0]) * scale
+            oy = np.float64(org[r, 1]) * scale
+            oz = np.float64(org[r, 2]) * scale
+            dx, dy, dz = np.float64(dirs[r, 0]), np.float64(dirs[r, 1]), np.float64(dirs[r, 2])
+            o_up = ox if axis == 0 else (oy if axis == 1 else oz)
+            d_up = dx if axis == 0 else (dy if axis == 1 else dz)
+            t = max(o_up - height, 0.0) / -d_up
+            qx, qy, qz = ox + t * dx, oy + t * dy, oz + t * dz
+            e = plane[G_EPS] * (plane[G_MAGNITUDE] + max(abs(qx), abs(qy), abs(qz)))
+            path_org[p, 0] = qx
+            path_org[p, 1] = qy
+            path_org[p, 2] = qz
+            path_org[p, axis] = height + e
+            for k in range(3):
+                path_normal[p, k] = 1.0 if k == axis else 0.0
+            black = True
+            for k in range(3):
+                throughput[p, k] *= plane[G_ALBEDO + k]
+                if throughput[p, k] > 0.0:
+                    black = False
+            if black:
+                alive[p] = False
+            continue
         if f < 0:
             for k in range(3):
                 value[p, k] += throughput[p, k] * math.pi * dome[k]
@@ -570,6 +608,37 @@ def path_sums(value_direct, value_indirect, per, sums_direct, sums_indirect, squ
                 sums_direct[a, k] += d
                 sums_indirect[a, k] += i
                 squares[a, k] += (d + i) * (d + i)
+
+
+@njit(cache=True, nogil=True)
+def ground_clip(org, dirs, m, axis, height, far_cap, far, on_plane):
+    """Path rays 0..m-1 against the ground plane ``x[axis] = height`` (Embree's frame):
+    where a ray going down meets it within ``far_cap``, ``far[r]`` is that distance
+    (its origin clamped to the plane: one offset below it starts on it) and
+    ``on_plane[r]`` 1, so Embree looks for nearer triangles only; else ``far_cap``, 0."""
+    for r in range(m):
+        down = -np.float64(dirs[r, axis])
+        far[r] = far_cap
+        on_plane[r] = 0
+        if down > 0.0:
+            t = max(np.float64(org[r, axis]) - height, 0.0) / down
+            if t < far_cap:
+                far[r] = t
+                on_plane[r] = 1
+
+
+@njit(cache=True, nogil=True)
+def ground_shadows(org, dirs, far, m, axis, height, on_plane):
+    """Shadow rays 0..m-1 (lengths ``far``, Embree's frame) that meet the ground plane
+    before their end: ``on_plane[r]`` 1, the ray is occluded, and its origin moves to
+    3 dir (outside the scene's box, going away: Embree rejects it at its root); else 0."""
+    for r in range(m):
+        down = -np.float64(dirs[r, axis])
+        on_plane[r] = 0
+        if down > 0.0 and max(np.float64(org[r, axis]) - height, 0.0) < np.float64(far[r]) * down:
+            on_plane[r] = 1
+            for k in range(3):
+                org[r, k] = np.float32(3.0) * dirs[r, k]
 
 
 @njit(cache=True, nogil=True)
