@@ -428,10 +428,13 @@ def _bake_range(
     ``weld``: bake the welded mesh (whole meshes only), results per input vertex.
     ``selection``: trace only its occluders, from its receivers (:func:`_compute_selected`).
     ``light``: a lit scene's :class:`aobake.lighting.LightJob`, computed on the same
-    scene (whole meshes only). ``ground``: a resolved plane every AO method counts."""
+    scene (whole meshes only), through the Embree scene the AO built (one, not two).
+    ``ground``: a resolved plane every AO method counts."""
+    from .tracing import shared_scenes
+
     totals = None
     welded = inverse = None
-    with CompileWatch() as watch:
+    with CompileWatch() as watch, shared_scenes():
         t0 = perf_counter()
         if weld:
             from .mesh import weld_vertices

@@ -649,3 +649,24 @@ def test_ground_occludes_a_lit_bake(runner, tmp_path):
     assert _ply_columns(tmp_path / "open.ply", IRR).max() > 0
     assert _ply_columns(tmp_path / "ground.ply", IRR).max() == 0
     assert any("ground=0" in c for c in _ply_comments(tmp_path / "ground.ply"))
+
+
+def test_a_lit_embree_bake_builds_one_embree_scene(runner, scene_ply, tmp_path, monkeypatch):
+    """The light pass traces the AO's Embree scene (one build, not two); outside a bake
+    every call builds its own."""
+    from aobake import tracing
+
+    built = []
+    real = tracing.Tracer.__init__
+
+    def counting(self, *args, **kwargs):
+        built.append(kwargs.get("robust", False))
+        real(self, *args, **kwargs)
+
+    monkeypatch.setattr(tracing.Tracer, "__init__", counting)
+    _ok(runner, ["bake", scene_ply, "-o", tmp_path / "lit.ply", *FEW, "-q", "--light", "distant:0,0,1"])
+    assert built.count(False) == 1  # (the contacts' robust local scenes aside)
+    surface = load_mesh(scene_ply)
+    assert tracing.tracer_for(surface.positions, surface.faces) is not tracing.tracer_for(surface.positions, surface.faces)
+    with tracing.shared_scenes():
+        assert tracing.tracer_for(surface.positions, surface.faces) is tracing.tracer_for(surface.positions, surface.faces)

@@ -36,7 +36,7 @@ from ...mesh import Surface
 from ...options import build
 from ...progress import NullProgress, Progress
 from ...shading import AREA_KINDS, Light, Shading
-from ...tracing import Tracer, trace_chunks
+from ...tracing import trace_chunks, tracer_for
 from .options import LightOptions
 
 
@@ -217,7 +217,7 @@ def irradiance(
     n_lights = len(lights)
     n_comp = n_lights + 1
 
-    tracer = Tracer(surface.positions, surface.faces)
+    tracer = tracer_for(surface.positions, surface.faces)
     edges = _topo.longest_edges(surface.positions, surface.faces)
     offsets = ray_offsets(surface, tracer.magnitude, options.bias, edges)
     origins, contacts = contact_origins(surface, tracer, offsets, edges)
