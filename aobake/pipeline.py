@@ -249,17 +249,19 @@ def bake_file(
     """
     from . import lighting
     from .io import check_outputs
+    from .io.usd import shared_stages
     from .selection import Selection
 
     outputs = _check_outputs(output, source, overlay)
     placed = _load_fields(fields)
-    surface = as_surface(source, time)
-    check_outputs(surface, outputs, channel)
-    selection = Selection.of(surface, receivers, occluders)
-    light = lighting.prepare(
-        source, surface, method, options, effects=effects, lights=lights, scene_lights=scene_lights,
-        split=split_irradiance, exposure=exposure,
-    )  # fmt: skip
+    with shared_stages():  # a USD scene's meshes, lights and materials from one open stage
+        surface = as_surface(source, time)
+        check_outputs(surface, outputs, channel)
+        selection = Selection.of(surface, receivers, occluders)
+        light = lighting.prepare(
+            source, surface, method, options, effects=effects, lights=lights, scene_lights=scene_lights,
+            split=split_irradiance, exposure=exposure,
+        )  # fmt: skip
     plane = _ground(surface, ground, up_axis)
     part = _bake_range(
         surface, method, options, progress, None, weld=weld, selection=selection, light=light, ground=plane
@@ -329,16 +331,20 @@ def bake_part(
     whole: a range of it is an error. ``ground`` and ``up_axis``: as for :func:`bake_file`.
     """
     from . import lighting
+    from .io.usd import shared_stages
     from .selection import Selection
 
-    surface = as_surface(source)
-    if parts is not None:
-        k, count = parts
-        n = surface.n_vertices
-        vertices = (n * k // count, n * (k + 1) // count)
-    selection = Selection.of(surface, receivers, occluders)
-    whole = vertices is None or tuple(vertices) == (0, surface.n_vertices)
-    light = lighting.prepare(source, surface, method, options, effects=effects, lights=lights, scene_lights=scene_lights)
+    with shared_stages():  # a USD scene's meshes, lights and materials from one open stage
+        surface = as_surface(source)
+        if parts is not None:
+            k, count = parts
+            n = surface.n_vertices
+            vertices = (n * k // count, n * (k + 1) // count)
+        selection = Selection.of(surface, receivers, occluders)
+        whole = vertices is None or tuple(vertices) == (0, surface.n_vertices)
+        light = lighting.prepare(
+            source, surface, method, options, effects=effects, lights=lights, scene_lights=scene_lights
+        )
     if light is not None and not whole:
         raise InputError(
             surface.source, f"a lit scene ({light.plan.reasons['direct']}) is baked whole: bake it unsplit, or with --effects ao"

@@ -670,3 +670,21 @@ def test_a_lit_embree_bake_builds_one_embree_scene(runner, scene_ply, tmp_path, 
     assert tracing.tracer_for(surface.positions, surface.faces) is not tracing.tracer_for(surface.positions, surface.faces)
     with tracing.shared_scenes():
         assert tracing.tracer_for(surface.positions, surface.faces) is tracing.tracer_for(surface.positions, surface.faces)
+
+
+def test_a_lit_usd_bake_opens_its_stage_once(tmp_path, monkeypatch):
+    """Meshes, lights and materials come from one open stage (it was two)."""
+    from pxr import Usd
+
+    from aobake.pipeline import bake_file
+
+    opened = []
+    real = Usd.Stage.Open
+
+    def counting(*args, **kwargs):
+        opened.append(str(args[0]))
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(Usd.Stage, "Open", counting)
+    bake_file(CORNELL, tmp_path / "o.ply", n_rays=4, light_samples=2, indirect_rays=2)
+    assert len(opened) == 1 and opened[0].endswith("cornell_box.usda")
