@@ -529,6 +529,17 @@ def hit_samples(
     m = 0
     last = -1  # a vertex's paths are consecutive: its per-component keys are made once
     comp_keys = np.zeros(n_lights + 1, dtype=np.uint64)
+    # per component, once a call: sampled here (the dome with shadows and absent
+    # emitters are not), has a finite range to test, casts shadow rays
+    sampled = np.ones(n_lights + 1, dtype=np.bool_)
+    ranged = np.zeros(n_lights + 1, dtype=np.bool_)
+    shadows = np.ones(n_lights + 1, dtype=np.bool_)
+    for c in range(n_lights):
+        kind = kinds[c]
+        sampled[c] = not (kind == DOME and params[c, P_SHADOW] > 0.0)
+        ranged[c] = kind != DISTANT and kind != DOME and params[c, P_RANGE] < np.inf
+        shadows[c] = params[c, P_SHADOW] > 0.0
+    sampled[n_lights] = has_emitters
     for p in range(alive.shape[0]):
         if not alive[p]:
             continue
@@ -540,19 +551,13 @@ def hit_samples(
             for c in range(n_lights + 1):
                 comp_keys[c] = rng.hash2(key, np.uint64(c))
         for c in range(n_lights + 1):
-            if c < n_lights:
-                kind = kinds[c]
-                if kind == DOME and params[c, P_SHADOW] > 0.0:
-                    continue
-                if kind != DISTANT and kind != DOME:  # the range; the rest makes w = 0
-                    tx, ty, tz = params[c, P_POS] - ox, params[c, P_POS + 1] - oy, params[c, P_POS + 2] - oz
-                    if not tx * tx + ty * ty + tz * tz < params[c, P_RANGE] * params[c, P_RANGE]:
-                        continue
-                shadow = params[c, P_SHADOW] > 0.0
-            elif not has_emitters:
+            if not sampled[c]:
                 continue
-            else:
-                shadow = True
+            if ranged[c]:  # beyond the range: no sample (the other culling makes w = 0)
+                tx, ty, tz = params[c, P_POS] - ox, params[c, P_POS + 1] - oy, params[c, P_POS + 2] - oz
+                if not tx * tx + ty * ty + tz * tz < params[c, P_RANGE] * params[c, P_RANGE]:
+                    continue
+            shadow = shadows[c]
             u0, u1 = rng.random2(index_of[p], comp_keys[c])
             if c < n_lights:
                 wr, wg, wb, dx, dy, dz, dist = sample_light(kinds[c], params, c, ox, oy, oz, nx, ny, nz, u0, u1)
