@@ -111,6 +111,8 @@ def prepare(
         if lights:
             warnings.warn("--light is not used: --effects ao computes ambient occlusion only", stacklevel=2)
         return None
+    if effects == "auto" and not lights and surface.metadata.get("format") == "PLY":
+        return None  # a PLY has no lights and emits nothing: AO alone, no shading arrays made
     shading = read(source, surface, lights=lights, scene_lights=scene_lights)
     for note in shading.notes:
         warnings.warn(f"{Path(str(surface.source)).name}: {note}", stacklevel=2)

@@ -145,16 +145,22 @@ def angle_weighted_normals(positions: FloatArray, faces: IndexArray) -> FloatArr
     np.arccos(cosines, out=cosines)
     start, corners = _k.corners_by_vertex(faces, n)
     out = _k.gather_weighted(fn, cosines, start, corners)
-    return normalize_rows(out)
+    del fn, cosines, start, corners  # 150 bytes per vertex, freed before the next peak
+    return _normalize_in_place(out)
 
 
 def normalize_rows(v: FloatArray) -> FloatArray:
     """Rows scaled to unit length; rows shorter than NORMAL_EPS become zero (never NaN)."""
+    return _normalize_in_place(np.array(v, dtype=np.float64))
+
+
+def _normalize_in_place(v: np.ndarray) -> np.ndarray:
+    """:func:`normalize_rows` of a float64 array the caller owns, overwritten (no copy)."""
     length = np.linalg.norm(v, axis=1)
-    out = np.zeros_like(v)
     ok = length > NORMAL_EPS
-    out[ok] = v[ok] / length[ok, None]
-    return out
+    np.divide(v, length[:, None], out=v, where=ok[:, None])
+    v[~ok] = 0.0
+    return v
 
 
 def vertex_areas(positions: FloatArray, faces: IndexArray) -> FloatArray:
@@ -223,14 +229,14 @@ def surface_from_arrays(
         as_float = faces_in.astype(np.float64)
         if not (np.isfinite(as_float).all() and (as_float == np.round(as_float)).all()):
             raise InputError(source, "faces must hold integer vertex indices")
-    faces = np.ascontiguousarray(faces_in, dtype=np.int64)
+    faces = np.array(faces_in, dtype=np.int64)  # a copy: the surface never shares the caller's
     if normals is not None:
         normals = np.asarray(normals, dtype=np.float64)
         if normals.shape != positions.shape:
             raise InputError(
                 source, f"normals have shape {normals.shape}, positions {positions.shape}"
             )
-    raw = RawPart(name, positions, faces, normals, np.full(len(faces), 3), faces.reshape(-1).copy())
+    raw = RawPart(name, positions, faces, normals, np.full(len(faces), 3), faces.reshape(-1))
     return assemble_surface([raw], source)
 
 
@@ -415,12 +421,16 @@ def assemble_surface(
         check_index_range(
             len(p.positions), (p.face_vertex_counts, p.face_vertex_indices), where, "polygons"
         )
-    positions = np.concatenate([p.positions for p in with_faces]).astype(np.float64, copy=False)
     offsets = np.cumsum([0] + [len(p.positions) for p in with_faces])
     face_offsets = np.cumsum([0] + [len(p.faces) for p in with_faces])
-    faces = np.concatenate(
-        [p.faces + off for p, off in zip(with_faces, offsets[:-1], strict=True)]
-    ).astype(np.int64, copy=False)
+    if len(with_faces) == 1:  # the part's own arrays: no copies (memory)
+        positions = np.ascontiguousarray(with_faces[0].positions, dtype=np.float64)
+        faces = np.ascontiguousarray(with_faces[0].faces, dtype=np.int64)
+    else:
+        positions = np.concatenate([p.positions for p in with_faces]).astype(np.float64, copy=False)
+        faces = np.concatenate(
+            [p.faces + off for p, off in zip(with_faces, offsets[:-1], strict=True)]
+        ).astype(np.int64, copy=False)
     validate_arrays(positions, faces, where)
     normals = np.concatenate([_vertex_normals(p.positions, p.faces, p.normals) for p in with_faces])
     warn_missing_normals(normals, positions, faces, source)

@@ -43,6 +43,8 @@ class Tracer:
         Embree's robust traversal (watertight at shared edges; slower).
     recentred : bool
         The positions are already in their local frame (``center`` is then 0).
+    deferred : bool
+        Do not build the Embree scene yet (:meth:`build`).
 
     Notes
     -----
@@ -65,26 +67,55 @@ class Tracer:
         *,
         robust: bool = False,
         recentred: bool = False,
+        deferred: bool = False,
     ):
-        from embreex import rtcore_scene
-        from embreex.mesh_construction import TriangleMesh
-
-        positions = np.asarray(positions, dtype=np.float64)
+        self._positions = positions = np.asarray(positions, dtype=np.float64)
         lo, hi = positions.min(axis=0), positions.max(axis=0)
         self.center = np.zeros(3) if recentred else 0.5 * (lo + hi)
-        self.local = positions - self.center
-        #: Largest recentred coordinate: the magnitude that sets float32 rounding.
-        self.magnitude = float(np.abs(self.local).max())
+        #: Largest recentred coordinate: the magnitude that sets float32 rounding. The
+        #: extremes of ``local`` are ``lo - center`` and ``hi - center`` (rounding is
+        #: monotonic), so no recentred copy is made for it.
+        self.magnitude = float(np.maximum(np.abs(lo - self.center), np.abs(hi - self.center)).max())
         #: Power of two the recentred coordinates are divided by before the cast.
         self.scale = power_of_two_scale(self.magnitude)
         if faces.size and faces.max() > np.iinfo(np.int32).max:
             raise InputError(None, f"{faces.max()} vertices exceed Embree's 32-bit indices")
-        self._scene = rtcore_scene.EmbreeScene(robust=robust)
-        TriangleMesh(self._scene, self.frame(self.local), faces.astype(np.int32))
+        self._faces, self._robust, self._embree = faces, robust, None
+        if not deferred:
+            self.build()
+
+    def build(self) -> Tracer:
+        """Hand the triangles to Embree and build its BVH, once. A tracer made with
+        ``deferred=True`` (its frame known, :attr:`local` and :meth:`frame` usable)
+        answers queries only after this, so a caller can free what it prepared from the
+        frame before Embree's memory (~170 bytes per vertex) is taken."""
+        if self._embree is not None:
+            return self
+        from embreex import rtcore, rtcore_scene
+        from embreex.mesh_construction import TriangleMesh
+
+        device = rtcore.EmbreeDevice()
+        scene = rtcore_scene.EmbreeScene(device, robust=self._robust)
+        if not _upload(scene, device, self._positions, self.center, self.scale, self._faces):
+            TriangleMesh(scene, self.frame(self.local), self._faces.astype(np.int32))
         # Commit now, on this thread: EmbreeScene.run commits lazily and is not safe to
         # commit from two worker threads at once.
         probe = np.zeros((1, 3), dtype=np.float32)
-        self._scene.run(probe, np.array([[0, 0, 1]], dtype=np.float32), query="OCCLUDED")
+        scene.run(probe, np.array([[0, 0, 1]], dtype=np.float32), query="OCCLUDED")
+        self._embree, self._faces = scene, None
+        return self
+
+    @property
+    def _scene(self):
+        if self._embree is None:
+            raise RuntimeError("Tracer(deferred=True) traces only after build()")
+        return self._embree
+
+    @property
+    def local(self) -> np.ndarray:
+        """(n, 3) float64: the positions minus ``center``, made on each access (not kept:
+        24 bytes per vertex)."""
+        return self._positions - self.center
 
     def frame(self, points: FloatArray) -> np.ndarray:
         """Recentred points (mesh units, float64) as the float32 points Embree takes."""
@@ -149,18 +180,121 @@ def shared_scenes():
             _shared.scenes = None
 
 
-def tracer_for(positions: FloatArray, faces: IndexArray) -> Tracer:
-    """``Tracer(positions, faces)``, or inside :func:`shared_scenes` the one already built
-    for these very array objects."""
+def tracer_for(positions: FloatArray, faces: IndexArray, *, deferred: bool = False) -> Tracer:
+    """``Tracer(positions, faces, deferred=deferred)``, or inside :func:`shared_scenes`
+    the one already made for these very array objects (built unless ``deferred``)."""
     scenes = getattr(_shared, "scenes", None)
     if scenes is None:
-        return Tracer(positions, faces)
+        return Tracer(positions, faces, deferred=deferred)
     for p, f, tracer in scenes:
         if p is positions and f is faces:
-            return tracer
-    tracer = Tracer(positions, faces)
+            return tracer if deferred else tracer.build()
+    tracer = Tracer(positions, faces, deferred=deferred)
     scenes.append((positions, faces, tracer))
     return tracer
+
+
+#: Embree 4's C enums (rtcore_common.h, rtcore_geometry.h).
+_GEOMETRY_TRIANGLE, _BUFFER_INDEX, _BUFFER_VERTEX = 0, 0, 1
+_FORMAT_UINT3, _FORMAT_FLOAT3 = 0x5003, 0x9003
+_api = None
+_BLOCK = 1 << 16  # rows per block of the vertex upload
+
+
+def _embree_api():
+    """Embree's C functions through ctypes, or False where embreex's objects are not laid
+    out as this module expects (another embreex build): :func:`_upload` then declines.
+
+    embreex's ``TriangleMesh`` copies the arrays into Embree's buffers one Python item at
+    a time (~1 s per million triangles); these calls let numpy fill the same buffers.
+    The handles are read from embreex's objects: ``EmbreeScene`` holds its ``RTCScene``
+    right after the object header, then ``is_committed``, then its ``EmbreeDevice``,
+    which holds its ``RTCDevice`` right after its header. Both are checked on a probe
+    scene (object sizes, a sentinel written through the public ``is_committed``, the
+    device's address) before use.
+    """
+    global _api
+    if _api is None:
+        _api = False
+        try:
+            import ctypes
+
+            from embreex import rtcore, rtcore_scene
+
+            word = ctypes.sizeof(ctypes.c_void_p)
+            head = object.__basicsize__
+            if (rtcore_scene.EmbreeScene.__basicsize__, rtcore.EmbreeDevice.__basicsize__) != (
+                head + 3 * word,
+                head + word,
+            ):
+                return _api
+            device = rtcore.EmbreeDevice()
+            probe = rtcore_scene.EmbreeScene(device, robust=False)
+            probe.is_committed = 0x5A17
+            if (
+                ctypes.c_int.from_address(id(probe) + head + word).value != 0x5A17
+                or ctypes.c_void_p.from_address(id(probe) + head + 2 * word).value != id(device)
+            ):
+                return _api
+            probe.is_committed = 0
+            lib = ctypes.CDLL(rtcore_scene.__file__)  # its symbols and libembree's
+            vp, size, uint, enum = ctypes.c_void_p, ctypes.c_size_t, ctypes.c_uint, ctypes.c_int
+            for name, res, args in (
+                ("rtcNewGeometry", vp, [vp, enum]),
+                ("rtcSetNewGeometryBuffer", vp, [vp, enum, uint, enum, size, size]),
+                ("rtcCommitGeometry", None, [vp]),
+                ("rtcAttachGeometry", uint, [vp, vp]),
+                ("rtcReleaseGeometry", None, [vp]),
+                ("rtcGetDeviceError", enum, [vp]),
+            ):
+                fn = getattr(lib, name)
+                fn.restype, fn.argtypes = res, args
+            _api = (lib, head, word)
+        except (ImportError, OSError, AttributeError, ValueError):
+            _api = False
+    return _api
+
+
+def _upload(scene, device, positions: np.ndarray, center, scale: float, faces: np.ndarray) -> bool:
+    """Fill a fresh embreex scene (made on ``device``) with the triangles, vertices
+    ``(positions - center) / scale`` cast to float32 (the values ``TriangleMesh`` would
+    copy), through Embree's own buffers; False where :func:`_embree_api` declines (the
+    caller then uses ``TriangleMesh``)."""
+    import ctypes
+
+    api = _embree_api()
+    if not api:
+        return False
+    lib, head, word = api
+    if ctypes.c_void_p.from_address(id(scene) + head + 2 * word).value != id(device):
+        return False
+    scene_ptr = ctypes.c_void_p.from_address(id(scene) + head).value
+    device_ptr = ctypes.c_void_p.from_address(id(device) + head).value
+    geom = lib.rtcNewGeometry(device_ptr, _GEOMETRY_TRIANGLE)
+    if not geom:
+        return False
+    try:
+        n, m = positions.shape[0], faces.shape[0]
+        vbuf = lib.rtcSetNewGeometryBuffer(geom, _BUFFER_VERTEX, 0, _FORMAT_FLOAT3, 16, n)
+        ibuf = lib.rtcSetNewGeometryBuffer(geom, _BUFFER_INDEX, 0, _FORMAT_UINT3, 12, m)
+        if (n and not vbuf) or (m and not ibuf):
+            raise MemoryError(f"Embree could not allocate buffers for {n} vertices and {m} triangles")
+        if n:
+            v = np.ctypeslib.as_array((ctypes.c_float * (4 * n)).from_address(vbuf)).reshape(n, 4)
+            for a in range(0, n, _BLOCK):  # in blocks: no full-size float64 temporary
+                b = min(a + _BLOCK, n)
+                v[a:b, :3] = (positions[a:b] - center) / scale
+            v[:, 3] = 0.0
+        if m:
+            t = np.ctypeslib.as_array((ctypes.c_uint32 * (3 * m)).from_address(ibuf)).reshape(m, 3)
+            t[...] = faces
+        lib.rtcCommitGeometry(geom)
+        lib.rtcAttachGeometry(scene_ptr, geom)
+    finally:
+        lib.rtcReleaseGeometry(geom)
+    if lib.rtcGetDeviceError(device_ptr) != 0:
+        raise MemoryError("Embree could not take the triangles (out of memory?)")
+    return True
 
 
 def power_of_two_scale(magnitude: float) -> float:

@@ -112,6 +112,30 @@ def test_matches_independent_float64_tracer():
     assert np.mean(result.ao != ref) < 0.02
 
 
+@pytest.mark.parametrize("offset,scale", [(0.0, 1.0), (1e4, 1.0), (0.0, 1e-9)])
+def test_buffer_upload_traces_as_triangle_mesh(monkeypatch, offset, scale):
+    # Tracer fills Embree's buffers through numpy (tracing._upload) instead of embreex's
+    # TriangleMesh: the same float32 triangles, so every query answers bit for bit the same.
+    from aobake import tracing
+
+    assert tracing._embree_api(), "embreex's objects are not laid out as tracing expects"
+    s, _ = scenes.sphere_on_ground(0.5, 3, gap=0.0, cells=12)
+    pos = s.positions * scale + offset
+    fast = Tracer(pos, s.faces)
+    monkeypatch.setattr(tracing, "_api", False)
+    slow = Tracer(pos, s.faces)
+    assert (fast.center == slow.center).all() and fast.scale == slow.scale
+    rng = np.random.default_rng(3)
+    org = fast.frame(fast.local[rng.integers(0, len(pos), 20000)] * (1 + 1e-3))
+    dirs = rng.normal(size=org.shape).astype(np.float32)
+    reach = np.full(len(org), 0.2 * scale)
+    for query in ("occluded", "first_hits"):
+        a, b = getattr(fast, query)(org, dirs), getattr(slow, query)(org, dirs)
+        assert (a == b).all() and 0.05 < (a >= 0).mean() < 0.95
+    a, b = fast.intersect(org, dirs, reach), slow.intersect(org, dirs, reach)
+    assert all(np.array_equal(a[k], b[k]) for k in ("primID", "tfar", "Ng", "u", "v"))
+
+
 def _scene_with_variety():
     s, _ = scenes.sphere_on_ground(0.5, 3, gap=0.0, cells=12)
     return s

@@ -70,3 +70,34 @@ def test_fixed_rows_empty_element():
     props = [("x", "<f4", None), ("vertex_indices", "<i4", "|u1")]
     columns = {"x": np.zeros(0), "vertex_indices": PlyList(np.zeros(0, dtype=np.int64), np.zeros(0))}
     assert ply._element_bytes(0, props, columns) == b""
+
+
+@pytest.mark.parametrize("index_type", ["int", "uint", "ushort"])
+def test_triangle_ply_shares_one_index_array_and_writes_back_same_bytes(tmp_path, index_type):
+    # An all-triangle PLY: the surface's faces, its part's polygons and the kept face
+    # list are one int64 array (no copies); written back, the list keeps its declared type.
+    from aobake.io import load_mesh, write_bake
+
+    rng = np.random.default_rng(7)
+    pos = rng.normal(size=(40, 3)).astype("<f4")
+    tri = rng.integers(0, 40, size=(60, 3))
+    kind = {"int": "<i4", "uint": "<u4", "ushort": "<u2"}[index_type]
+    rec = np.empty(len(tri), dtype=[("n", "u1"), ("i", kind, (3,))])
+    rec["n"], rec["i"] = 3, tri
+    header = (
+        f"ply\nformat binary_little_endian 1.0\nelement vertex {len(pos)}\nproperty float x\n"
+        f"property float y\nproperty float z\nelement face {len(tri)}\n"
+        f"property list uchar {index_type} vertex_indices\nend_header\n"
+    )
+    src = tmp_path / "in.ply"
+    src.write_bytes(header.encode() + pos.tobytes() + rec.tobytes())
+    s = load_mesh(src)
+    kept = s.metadata["ply"].data.elements["face"].properties["vertex_indices"].values
+    assert np.array_equal(s.faces, tri)
+    assert np.shares_memory(s.faces, s.parts[0].face_vertex_indices)
+    assert np.shares_memory(s.faces, kept)
+    out = tmp_path / "out.ply"
+    write_bake(out, s, np.full(len(pos), 0.5))
+    body = out.read_bytes()
+    assert f"property list uchar {index_type} vertex_indices" in body[:400].decode("ascii", "replace")
+    assert body.endswith(rec.tobytes())

@@ -132,6 +132,21 @@ def test_no_light_is_the_ao_bake_byte_for_byte(runner, scene_ply, tmp_path, suff
     assert b"irradiance" not in auto.read_bytes()
 
 
+def test_plain_ply_bake_makes_no_shading(monkeypatch, scene_ply):
+    # a PLY has no lights: an auto bake without --light reads no shading (its per-vertex
+    # and per-face arrays cost ~150 bytes per vertex), while a --light still reads it
+    from aobake import lighting
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("shading read")
+
+    monkeypatch.setattr(lighting, "read", refuse)
+    surface = load_mesh(scene_ply)
+    assert lighting.prepare(scene_ply, surface, "embree", {}) is None
+    with pytest.raises(AssertionError, match="shading read"):
+        lighting.prepare(scene_ply, surface, "embree", {}, lights=("point 0 0 3 10",))
+
+
 def test_plan_of_a_scene_without_light(runner, scene_ply):
     r = _ok(runner, ["plan", scene_ply])
     assert "yes ao" in r.stdout and "no  direct" in r.stdout and "no lights or emitters" in r.stdout

@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from aobake.constants import NORMAL_EPS
 from aobake.mesh import angle_weighted_normals, normalize_rows
 from aobake.testing import scenes
 
@@ -35,7 +36,30 @@ def numpy_normals(positions, faces):
         cos = np.divide(np.einsum("ij,ij->i", a, b), denom, out=np.zeros_like(denom), where=denom > 0)
         angle = np.arccos(np.clip(cos, -1.0, 1.0))
         np.add.at(out, faces[:, k], fn * angle[:, None])
-    return normalize_rows(out)
+    return numpy_normalize(out)
+
+
+def numpy_normalize(v):
+    """The former normalize_rows (a zeroed copy filled where the length passes)."""
+    length = np.linalg.norm(v, axis=1)
+    out = np.zeros_like(v)
+    ok = length > NORMAL_EPS
+    out[ok] = v[ok] / length[ok, None]
+    return out
+
+
+def test_normalize_rows_same_bits_and_input_kept():
+    # in-place division where the length passes: the former zeroed copy, bit for bit
+    rng = np.random.default_rng(4)
+    v = rng.normal(size=(3000, 3)) * 10.0 ** rng.integers(-12, 12, size=(3000, 1))
+    v[::7] = 0.0
+    v[::11] *= 1e-300
+    v[5] = [-0.0, 0.0, -0.0]
+    keep = v.copy()
+    got = normalize_rows(v)
+    assert got.tobytes() == numpy_normalize(keep).tobytes()
+    assert v.tobytes() == keep.tobytes()
+    assert (np.linalg.norm(got, axis=1) == 0).sum() >= 3000 // 7
 
 
 def assert_same_bits(positions, faces):

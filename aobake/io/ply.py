@@ -74,8 +74,15 @@ def read_parts(path: Path, data: bytes, metadata: dict | None = None) -> list[Ra
         counts, corners = lists[key]
         if corners.dtype.kind == "f" and not (corners == np.round(corners)).all():
             raise InputError(path, f"cannot read as PLY: face {key!r} holds non-integer indices")
+        integral = corners.dtype.kind in "iu"
         corners = corners.astype(np.int64)
-    faces = fan_triangulate(counts, corners)
+        if integral and metadata is not None:
+            # the kept list shares these exact values (writers cast to the declared type)
+            face.properties[key] = PlyList(counts, corners)
+    if counts.size and corners.size == 3 * counts.size and (counts == 3).all():
+        faces = corners.reshape(-1, 3)  # all triangles: the polygons' own array, no copy
+    else:
+        faces = fan_triangulate(counts, corners)
     return [RawPart(path.stem, positions, faces, normals, counts, corners)]
 
 
@@ -289,7 +296,8 @@ class KeptPly(NamedTuple):
     Attributes
     ----------
     data : PlyData
-        Every element and property.
+        Every element and property; the faces' integer index list as int64 (the
+        corners the surface's polygons share, same values as the declared type).
     types : dict of str to tuple of (name, dtype, count dtype or None)
         The declared types (:func:`aobake.io.plyparse.read_ply_types`).
     """

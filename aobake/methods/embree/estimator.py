@@ -211,13 +211,15 @@ def estimate(
     lo, hi = (0, n) if vertices is None else (int(vertices[0]), int(vertices[1]))
     if not 0 <= lo <= hi <= n:
         raise ValueError(f"vertex range ({lo}, {hi}) is not within the mesh's {n} vertices")
-    tracer = tracer_for(surface.positions, surface.faces)
+    tracer = tracer_for(surface.positions, surface.faces, deferred=True)
     edges = _topo.longest_edges(surface.positions, surface.faces)
     offsets = ray_offsets(surface, tracer.magnitude, options.bias, edges)
     if contact_fix:
         origins, contacts = contact_origins(surface, tracer, offsets, edges)
     else:
         origins, contacts = tracer.frame(tracer.local + offsets[:, None] * surface.normals), 0
+    del edges, offsets  # freed before the rays (memory)
+    tracer.build()  # after the origins: their temporaries are gone before Embree's memory
     normals = np.ascontiguousarray(surface.normals, dtype=np.float64)
     keys = _k.vertex_keys(np.uint64(options.seed), n)
     mode = MEASURE_CODES[options.measure] + (0 if stratified else 2)
