@@ -35,6 +35,7 @@ class AobakeGroup(click.Group):
 
         if threading.current_thread() is threading.main_thread():
             progress.install_interrupt_handler()  # Ctrl-C during numba compilation is not lost
+        _fixed_mmap_threshold()
         with _held_warnings() as held:
             try:
                 result = super().invoke(ctx)
@@ -53,6 +54,21 @@ class AobakeGroup(click.Group):
         for line in dict.fromkeys(held):  # once each, in order
             click.echo(f"Warning: {line}", err=True)
         return result
+
+
+def _fixed_mmap_threshold() -> None:
+    """Have glibc's malloc map every block over 128 KiB on its own and unmap it when
+    freed. By default the threshold rises to the largest block freed (up to 32 MiB), so a
+    mesh's freed temporaries stay in the heap and the peak memory of a large bake grows
+    by ~15 bytes per vertex. Linux with glibc only; elsewhere nothing happens."""
+    if not sys.platform.startswith("linux"):
+        return
+    try:
+        import ctypes
+
+        ctypes.CDLL("libc.so.6").mallopt(-3, 128 * 1024)  # M_MMAP_THRESHOLD
+    except (OSError, AttributeError):
+        pass
 
 
 def _held_warnings():

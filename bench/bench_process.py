@@ -10,7 +10,8 @@ Scenes: an icosphere (radius 0.5, its lowest vertex on the floor) over a square 
 floor, written as binary little-endian PLY (float32 x y z, uchar/int faces) and cached
 under bench/results/: subdivision 8 over 256^2 cells (721,411 vertices), with ``--big``
 subdivision 9 over 1024^2 (3,672,067), with ``--huge`` subdivision 10 over 4096^2
-(27,267,331; skipped when MemAvailable is short).
+(27,267,331; skipped when MemAvailable is short; this tree's embree rows, one run each).
+``--big-rows`` limits the rows of the larger scenes.
 
 1. Whole process: ``python -m aobake bake SCENE -o out.ply --up Z`` in a fresh process
    (warm numba cache) at --rays 1, 16, 64 and ``--method bunnell`` at its defaults:
@@ -204,11 +205,14 @@ class TraceOnly:
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--big", action="store_true", help="also the ~3.7M-vertex scene")
-    p.add_argument("--huge", action="store_true", help="also the ~27M-vertex scene (needs ~30 GB free)")
+    p.add_argument("--huge", action="store_true", help="also the ~27M-vertex scene (this tree's embree "
+                   "rows only; needs ~16 GB free)")  # fmt: skip
     p.add_argument("--baseline", type=Path, help="another checkout measured in the same run")
     p.add_argument("--repeats", type=int, default=2)
     p.add_argument("--threads", type=int, default=os.cpu_count() or 1)
     p.add_argument("--no-profile", action="store_true", help="skip the stage shares")
+    p.add_argument("--big-rows", default="", help="comma-separated labels: only these rows on "
+                   "the larger scenes (e.g. 'embree --rays 1,embree --rays 16')")  # fmt: skip
     args = p.parse_args(argv)
     from aobake.constants import CHUNK_RAYS
 
@@ -228,8 +232,10 @@ def main(argv=None) -> int:
         for _, code in codes:
             for _, bake_args in CONFIGS:
                 run_bake(code, warm, bake_args, out_dir)
+        big_rows = [r.strip() for r in args.big_rows.split(",") if r.strip()]
         for name in names:
-            need = SCENES[name][2] * 1200  # the issue measured ~800-900 B/vertex peak
+            # peaks measured: ~400 B/vertex (embree), ~900 (bunnell, the baseline's embree)
+            need = SCENES[name][2] * (600 if name == "27M" else 1200)
             if name != "721k" and mem_available() < need:
                 print(f"(skipping the {name} scene: {mem_available() / 2**30:.1f} GiB available, "
                       f"~{need / 2**30:.0f} GiB needed)\n")  # fmt: skip
@@ -241,12 +247,18 @@ def main(argv=None) -> int:
                 log("preparing trace-only rays")
                 trace = TraceOnly(ply)
             rows = []
-            for label, bake_args in CONFIGS:
+            configs = CONFIGS
+            if name != "721k" and big_rows:
+                configs = [c for c in CONFIGS if c[0] in big_rows]
+            if name == "27M":  # this tree's embree rows only: the others need more memory
+                configs = [c for c in configs if c[0].startswith("embree")]
+            for label, bake_args in configs:
                 best = {}
                 rays = int(bake_args[1]) if bake_args[0] == "--rays" else None
                 tr_run = trace.runner(rays, args.threads, CHUNK_RAYS) if trace and rays else None
-                for _ in range(args.repeats):
-                    for cname, code in codes:
+                scene_codes = codes[:1] if name == "27M" else codes
+                for _ in range(1 if name == "27M" else args.repeats):  # minutes per row
+                    for cname, code in scene_codes:
                         log(f"{name} {label} [{cname}]")
                         wall, rss = run_bake(code, ply, bake_args, out_dir)
                         if cname not in best or wall < best[cname][0]:
@@ -256,7 +268,7 @@ def main(argv=None) -> int:
                         if "trace" not in best or t.seconds < best["trace"][0]:
                             best["trace"] = (t.seconds, 0)
                 del tr_run
-                for cname, _ in codes:
+                for cname, _ in scene_codes:
                     wall, rss = best[cname]
                     ratio = ""
                     if "trace" in best:

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from aobake.io import ply
-from aobake.io.plyparse import PlyList
+from aobake.io.plyparse import PlyList, read_ply
 from aobake.mesh import fan_triangulate
 
 
@@ -75,7 +75,8 @@ def test_fixed_rows_empty_element():
 @pytest.mark.parametrize("index_type", ["int", "uint", "ushort"])
 def test_triangle_ply_shares_one_index_array_and_writes_back_same_bytes(tmp_path, index_type):
     # An all-triangle PLY: the surface's faces, its part's polygons and the kept face
-    # list are one int64 array (no copies); written back, the list keeps its declared type.
+    # list are one int64 array, the kept x y z views of the positions (no copies);
+    # written back, each keeps its declared type and values.
     from aobake.io import load_mesh, write_bake
 
     rng = np.random.default_rng(7)
@@ -96,8 +97,14 @@ def test_triangle_ply_shares_one_index_array_and_writes_back_same_bytes(tmp_path
     assert np.array_equal(s.faces, tri)
     assert np.shares_memory(s.faces, s.parts[0].face_vertex_indices)
     assert np.shares_memory(s.faces, kept)
+    assert np.shares_memory(s.positions, s.metadata["ply"].data.elements["vertex"].properties["x"])
+    counts = s.parts[0].face_vertex_counts
+    assert counts.shape == (len(tri),) and counts.strides == (0,) and (counts == 3).all()
     out = tmp_path / "out.ply"
     write_bake(out, s, np.full(len(pos), 0.5))
+    back = read_ply(out).elements["vertex"].properties
+    for k, axis in enumerate("xyz"):
+        assert back[axis].dtype == np.float32 and back[axis].tobytes() == pos[:, k].tobytes()
     body = out.read_bytes()
     assert f"property list uchar {index_type} vertex_indices" in body[:400].decode("ascii", "replace")
     assert body.endswith(rec.tobytes())

@@ -62,6 +62,11 @@ def read_parts(path: Path, data: bytes, metadata: dict | None = None) -> list[Ra
     if missing:
         raise InputError(path, f"cannot read as PLY: vertex element lacks property {missing[0]!r}")
     positions = np.column_stack([columns[axis] for axis in "xyz"]).astype(np.float64)
+    if metadata is not None:
+        for k, axis in enumerate("xyz"):  # kept as views of these exact values (no copy)
+            kind, size = columns[axis].dtype.kind, columns[axis].dtype.itemsize
+            if kind == "f" or (kind in "iu" and size <= 4):
+                columns[axis] = positions[:, k]
     normals = None
     if all(isinstance(columns.get(key), np.ndarray) for key in ("nx", "ny", "nz")):
         normals = np.column_stack([columns[key] for key in ("nx", "ny", "nz")]).astype(np.float64)
@@ -76,6 +81,8 @@ def read_parts(path: Path, data: bytes, metadata: dict | None = None) -> list[Ra
             raise InputError(path, f"cannot read as PLY: face {key!r} holds non-integer indices")
         integral = corners.dtype.kind in "iu"
         corners = corners.astype(np.int64)
+        if counts.size and corners.size == 3 * counts.size and (counts == 3).all():
+            counts = np.broadcast_to(np.int64(3), counts.shape)  # read-only, no memory
         if integral and metadata is not None:
             # the kept list shares these exact values (writers cast to the declared type)
             face.properties[key] = PlyList(counts, corners)
@@ -296,8 +303,10 @@ class KeptPly(NamedTuple):
     Attributes
     ----------
     data : PlyData
-        Every element and property; the faces' integer index list as int64 (the
-        corners the surface's polygons share, same values as the declared type).
+        Every element and property; the vertices' ``x y z`` as float64 views of the
+        surface's positions and the faces' integer index list as int64 (the corners
+        the surface's polygons share): the same values as the declared types, which
+        the writers cast back to.
     types : dict of str to tuple of (name, dtype, count dtype or None)
         The declared types (:func:`aobake.io.plyparse.read_ply_types`).
     """

@@ -260,7 +260,7 @@ def estimate(
     pool = ThreadPoolExecutor(max_workers=threads)
     try:
         for j0, j1 in _rounds(n_rays, tolerance is not None):
-            before = hits[active]
+            before = hits[active] if tolerance is not None else None
             trace_chunks(
                 ray_chunks(active, j0, j1, chunk_rays, threads),
                 trace,
@@ -282,6 +282,7 @@ def estimate(
     finally:
         pool.shutdown(wait=True, cancel_futures=True)
     progress.finish()
+    tracer = origins = keys = active = None  # Embree's scene and the ray inputs, freed first
 
     hits, cast = hits[lo:hi], cast[lo:hi]
     denom = np.maximum(cast, 1)
