@@ -101,8 +101,8 @@ class Emitters(NamedTuple):
 
 
 class NearField(NamedTuple):
-    """Near-field cells renumbered to tree order (``polygon.permute_cells``): row k is the
-    emitter at tree position k, the other vertices follow."""
+    """Near-field cells renumbered to tree order (``polygon.renumbered_cells``): row k is
+    the emitter at tree position k, the other vertices follow."""
 
     positions: np.ndarray  #: (n, 3) float64 vertex positions
     weights: np.ndarray  #: (n,) float64 the cells' pass weights
