@@ -446,18 +446,18 @@ def node_coherence(normals, areas, order, start, stop, out):
 
 
 @njit(cache=True, error_model="numpy", parallel=True)
-def quantised_keys(positions, rows, lo, step, out):
-    """``out[t] = floor((positions[rows[t]] - lo) * step + 0.5)`` as int64 (the tree's
-    integer keys, as numpy computed them)."""
-    for t in prange(rows.shape[0]):
-        j = rows[t]
-        for c in range(3):
-            out[t, c] = np.int64(np.floor((positions[j, c] - lo[c]) * step + 0.5))
+def quantised_keys(positions, rows, steps, out):
+    """The tree's integer keys: ``out[t] = floor((positions[rows[t]] - lo) * (steps / E)
+    + 0.5)`` (int64) with lo the least coordinates of those rows and E their bounding
+    box's largest extent, as numpy computed them; all zeros when E is not > 0.
 
-
-@njit(cache=True, error_model="numpy")
-def bounds(positions, rows):
-    """(lo, hi): per axis the least and greatest of ``positions[rows]`` (k >= 1)."""
+    Parameters
+    ----------
+    positions : (n, 3) float64
+    rows : (k,) int64, k >= 1
+    steps : float
+    out : (k, 3) int64
+    """
     lo = positions[rows[0]].copy()
     hi = lo.copy()
     for t in range(1, rows.shape[0]):
@@ -468,4 +468,12 @@ def bounds(positions, rows):
                 lo[c] = v
             if v > hi[c]:
                 hi[c] = v
-    return lo, hi
+    extent = max(hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2])
+    if not extent > 0.0:
+        out[:] = 0
+        return
+    step = steps / extent
+    for t in prange(rows.shape[0]):
+        j = rows[t]
+        for c in range(3):
+            out[t, c] = np.int64(np.floor((positions[j, c] - lo[c]) * step + 0.5))

@@ -76,12 +76,8 @@ def tree_keys(positions: FloatArray, rows: IndexArray | None = None) -> IndexArr
     rows = np.ascontiguousarray(rows, dtype=np.int64)
     if rows.shape[0] == 0:
         return np.zeros((0, 3), dtype=np.int64)
-    lo, hi = _k.bounds(positions, rows)
-    extent = float((hi - lo).max())
-    if not extent > 0.0:
-        return np.zeros((rows.shape[0], 3), dtype=np.int64)
     out = np.empty((rows.shape[0], 3), dtype=np.int64)
-    _k.quantised_keys(positions, rows, lo, TREE_KEY_STEPS / extent, out)
+    _k.quantised_keys(positions, rows, float(TREE_KEY_STEPS), out)
     return out
 
 
