@@ -107,7 +107,7 @@ class NearField(NamedTuple):
     positions: np.ndarray  #: (n, 3) float64 vertex positions
     weights: np.ndarray  #: (n,) float64 the cells' pass weights
     corner_start: np.ndarray  #: (n + 1,) int64
-    corners: np.ndarray  #: (c, 2) int64
+    corners: np.ndarray  #: (c, 2) int32 (int64 from 2^31 vertices on)
     reach: np.ndarray  #: (n,) float64 farthest corner from the vertex
     #: (n, 2, N_BINS) float64 each receiver's cell sums, cumulative by distance bin
     cache: np.ndarray

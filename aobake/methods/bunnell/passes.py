@@ -273,15 +273,15 @@ def _non_emitters(n: int, order: IndexArray) -> IndexArray:
 def _cells_in_tree_order(elements: DiskElements, order: IndexArray):
     """``(perm, (positions, corner_start, corners, reach))``: the vertices renumbered so
     that the emitters come first in tree order ``order`` (then the others), with their
-    positions and cells (``polygon.renumbered_cells`` and ``polygon.cell_reach``). A receiver's near-field cells are its
+    positions and cells (``polygon.renumbered_cells``, corners int32 below 2^31 vertices,
+    and ``polygon.cell_reach``). A receiver's near-field cells are its
     neighbours' and their corners are near them: in tree order they are near in memory
     too, whatever the input's vertex order (a scattered order made the cells slow)."""
     n = elements.n_vertices
     perm = np.concatenate([order, _non_emitters(n, order)]).astype(np.int64)
-    # int64 corners: with int32 the tree pass's fastmath kernel compiles to other
-    # roundings in its leveled passes (measured: passes 2 moved by 4e-8)
-    inverse = np.empty(n, dtype=np.int64)
-    inverse[perm] = np.arange(n, dtype=np.int64)
+    index = np.int32 if n < 2**31 else np.int64  # the corners' dtype: half the table
+    inverse = np.empty(n, dtype=index)
+    inverse[perm] = np.arange(n, dtype=index)
     start, corners = _poly.renumbered_cells(elements.faces, inverse)
     del inverse
     positions = np.ascontiguousarray(elements.positions[perm])
