@@ -396,3 +396,25 @@ def test_ground_under_a_vertex_in_it_below_a_small_disk():
     for ground in (None, Ground(2, 0.0)):
         r = lit(surface, [sky], n_indirect=1024, bounces=0, ground=ground)
         assert r.direct[0, 0] == pytest.approx(want, rel=0.01)
+
+
+def test_ground_leaves_a_modelled_floor_in_it_its_albedo():
+    """A floor modelled in the plane keeps its hits (and its albedo, 0.8 here): a
+    receiver above it facing down gets the same light with the plane as without, but
+    for the few paths that pass the floor's edge and now meet the lit plane."""
+    from dataclasses import replace
+
+    from aobake.ground import Ground
+
+    pos, faces = ground_grid(50.0, 2)
+    receiver = np.array([[0.0, 0.0, 1.0], [1e-4, 0.0, 1.0], [0.0, 1e-4, 1.0]])
+    normals = np.vstack([np.tile([0.0, 0.0, 1.0], (len(pos), 1)), np.tile([0.0, 0.0, -1.0], (3, 1))])
+    surface = surface_from_arrays(np.vstack([pos, receiver]), np.vstack([faces, [[len(pos), len(pos) + 2, len(pos) + 1]]]), normals)
+    sun = Light.make("distant", "sun", (1.0, 1.0, 1.0), direction=(0.0, 0.0, 1.0))
+    shading = default_shading(surface.n_vertices, surface.n_faces, [sun])
+    shading = replace(shading, face_albedo=np.full((surface.n_faces, 3), 0.8))
+    a = irradiance(surface, shading, n_indirect=256)
+    b = irradiance(surface, shading, n_indirect=256, ground=Ground(2, 0.0))
+    top = len(pos)
+    assert a.indirect[top, 0] == pytest.approx(0.8, rel=0.02)  # the floor fills its view
+    assert np.allclose(a.indirect[top:], b.indirect[top:], rtol=2e-3)  # (0.66 if the plane took its hits)

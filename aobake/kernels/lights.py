@@ -616,11 +616,13 @@ def path_sums(value_direct, value_indirect, per, sums_direct, sums_indirect, squ
 
 
 @njit(cache=True, nogil=True)
-def ground_clip(org, dirs, m, axis, height, far_cap, far, on_plane):
+def ground_clip(org, dirs, m, axis, height, far_cap, slack, far, on_plane):
     """Path rays 0..m-1 against the ground plane ``x[axis] = height`` (Embree's frame):
-    where a ray going down meets it within ``far_cap``, ``far[r]`` is that distance
-    (its origin clamped to the plane: one offset below it starts on it) and
-    ``on_plane[r]`` 1, so Embree looks for nearer triangles only; else ``far_cap``, 0."""
+    where a ray going down meets it within ``far_cap`` (its origin clamped to the
+    plane: one offset below it starts on it), ``on_plane[r]`` is 1 and ``far[r]`` that
+    distance plus ``slack`` x (1 + distance), so Embree looks for nearer triangles only
+    but still finds a modelled floor lying in the plane (it keeps its albedo); else
+    ``far_cap``, 0."""
     for r in range(m):
         down = -np.float64(dirs[r, axis])
         far[r] = far_cap
@@ -628,7 +630,7 @@ def ground_clip(org, dirs, m, axis, height, far_cap, far, on_plane):
         if down > 0.0:
             t = max(np.float64(org[r, axis]) - height, 0.0) / down
             if t < far_cap:
-                far[r] = t
+                far[r] = min(t + slack * (1.0 + t), far_cap)
                 on_plane[r] = 1
 
 

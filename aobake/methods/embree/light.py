@@ -404,7 +404,7 @@ def irradiance(
             if m == 0:
                 break
             if ground is not None:  # Embree looks no farther than the plane
-                _kl.ground_clip(org, dirs, m, g_axis, g_height, far_cap, far, on_plane)
+                _kl.ground_clip(org, dirs, m, g_axis, g_height, far_cap, RAY_OFFSET_ULPS * EPS32, far, on_plane)
                 if depth == bounces:  # escapes alone matter: Embree's cheaper any-hit query
                     prim = tracer.occluded_within(org[:m], dirs[:m], far[:m])
                 else:
