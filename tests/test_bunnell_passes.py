@@ -199,3 +199,14 @@ def test_one_level_weights_give_the_same_sums():
             a = one.sums(levels, NullProgress())[0]  # leveled: grown to N_LEVELS
             assert one.weights.shape == (e.n_emitters, K.N_LEVELS)
             np.testing.assert_array_equal(a, spread.sums(levels, NullProgress())[0])
+
+
+def test_scratch_is_a_writable_array_of_its_shape():
+    """The pass's list buffers (passes.scratch): C-contiguous, writable, the asked shape
+    and dtype (numba types them as numpy's own), empty shapes included."""
+    for shape, dtype in (((2, 18, 1000), np.float32), ((2, 2, 7), np.int64), ((2, 26, 0), np.float32)):
+        a = P.scratch(shape, dtype)
+        assert a.shape == shape and a.dtype == dtype
+        assert a.flags.c_contiguous and a.flags.writeable and a.flags.aligned
+        a[...] = 1
+        assert np.all(a == 1)

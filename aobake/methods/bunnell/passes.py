@@ -122,9 +122,9 @@ class _Pass:
             order=recv_order,
             start=bucket_start,
             bounds=bounds,
-            near_buf=np.empty((slots, _tw.NEAR_ROWS, k), dtype=np.float32),
-            near_idx=np.empty((slots, 2, k), dtype=np.int64),
-            far_buf=np.empty((slots, _tw.FAR_ROWS, m), dtype=np.float32),
+            near_buf=scratch((slots, _tw.NEAR_ROWS, k), np.float32),
+            near_idx=scratch((slots, 2, k), np.int64),
+            far_buf=scratch((slots, _tw.FAR_ROWS, m), np.float32),
         )
 
     def _levels(self, levels: int) -> None:
@@ -247,6 +247,19 @@ class _Pass:
             )
             progress.advance(int(bucket_start[b1] - bucket_start[b0]))
         return out, first
+
+
+def scratch(shape: tuple, dtype) -> np.ndarray:
+    """An uninitialised C-contiguous array on an anonymous mapping of its own: its pages
+    become resident only where written. The pass's per-thread lists are rows k (or m)
+    entries apart, each written only at its start; numpy asks the kernel for 2 MiB pages
+    on large arrays, which made them ~90 MiB resident whatever the mesh's size."""
+    import mmap
+
+    dtype = np.dtype(dtype)
+    count = math.prod(shape)
+    buffer = mmap.mmap(-1, max(count * dtype.itemsize, 1))
+    return np.frombuffer(buffer, dtype=dtype, count=count).reshape(shape)
 
 
 def _no_fill(n: int) -> _s.Fill:
