@@ -181,12 +181,20 @@ class NumberRange(click.FloatRange):
     def __init__(self, *args, finite: bool = True, **kwargs):
         super().__init__(*args, **kwargs)
         self.finite = finite
+        if self.min is None and self.max is None:
+            self.name = "float"  # the metavar: FLOAT, not FLOAT RANGE
 
     def convert(self, value, param, ctx):
         value = super().convert(value, param, ctx)
         if value != value or (self.finite and value in (float("inf"), float("-inf"))):
             self.fail(f"{value} is not a {'finite ' if self.finite else ''}number.", param, ctx)
         return value
+
+    def _describe_range(self) -> str:
+        # no bounds: say nothing (click would print "x<=None")
+        if self.min is None and self.max is None:
+            return ""
+        return super()._describe_range()
 
 
 def _click_type(spec):

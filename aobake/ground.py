@@ -19,6 +19,10 @@ from .errors import SettingError
 
 AXES = {"X": 0, "Y": 1, "Z": 2}
 
+#: What the plane reflects in a lit bake (linear RGB, all channels): the grey a
+#: surface without a colour gets (:data:`aobake.shading.DEFAULT_ALBEDO`).
+ALBEDO = 0.18
+
 #: Vertices this far below the plane (relative to the mesh's extent along up) count as
 #: on it: float rounding of a mesh exported "on the floor" is not a mistake.
 BELOW_TOLERANCE = 1e-6

@@ -180,12 +180,15 @@ def read(source: Any, surface: Surface, *, lights: Sequence = (), scene_lights: 
     return default_shading(surface.n_vertices, surface.n_faces, parsed)
 
 
-def compute(job: LightJob, scene: Surface, method: str, options: dict, progress, *, faces=None, inverse=None):
+def compute(
+    job: LightJob, scene: Surface, method: str, options: dict, progress, *, faces=None, inverse=None, ground=None
+):
     """Irradiance attributes of a bake (per input vertex) and its :class:`LightTotals`.
 
     ``scene``: the surface the AO was traced on; ``faces`` (bool per face of the input
     surface): the triangles it kept (``--occluders``); ``inverse``: a welded scene's
-    vertex for each input vertex (``--weld``).
+    vertex for each input vertex (``--weld``); ``ground``: the resolved ``--ground``
+    plane (occludes and reflects, :data:`aobake.ground.ALBEDO`).
     """
     from .io.lights import welded_shading
     from .methods import run_light
@@ -195,7 +198,9 @@ def compute(job: LightJob, scene: Surface, method: str, options: dict, progress,
         shading = replace(shading, face_albedo=shading.face_albedo[faces], face_emission=shading.face_emission[faces])
     if inverse is not None:
         shading = welded_shading(shading, inverse)
-    result = run_light(method, scene, shading, options, progress, indirect="indirect" in job.plan.effects)
+    result = run_light(
+        method, scene, shading, options, progress, indirect="indirect" in job.plan.effects, ground=ground
+    )
     direct, indirect = result.direct, result.indirect
     if inverse is not None:
         direct, indirect = direct[inverse], indirect[inverse]

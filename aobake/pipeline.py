@@ -249,17 +249,19 @@ def bake_file(
     """
     from . import lighting
     from .io import check_outputs
+    from .io.usd import shared_stages
     from .selection import Selection
 
     outputs = _check_outputs(output, source, overlay)
     placed = _load_fields(fields)
-    surface = as_surface(source, time)
-    check_outputs(surface, outputs, channel)
-    selection = Selection.of(surface, receivers, occluders)
-    light = lighting.prepare(
-        source, surface, method, options, effects=effects, lights=lights, scene_lights=scene_lights,
-        split=split_irradiance, exposure=exposure,
-    )  # fmt: skip
+    with shared_stages():  # a USD scene's meshes, lights and materials from one open stage
+        surface = as_surface(source, time)
+        check_outputs(surface, outputs, channel)
+        selection = Selection.of(surface, receivers, occluders)
+        light = lighting.prepare(
+            source, surface, method, options, effects=effects, lights=lights, scene_lights=scene_lights,
+            split=split_irradiance, exposure=exposure,
+        )  # fmt: skip
     plane = _ground(surface, ground, up_axis)
     part = _bake_range(
         surface, method, options, progress, None, weld=weld, selection=selection, light=light, ground=plane
@@ -329,16 +331,20 @@ def bake_part(
     whole: a range of it is an error. ``ground`` and ``up_axis``: as for :func:`bake_file`.
     """
     from . import lighting
+    from .io.usd import shared_stages
     from .selection import Selection
 
-    surface = as_surface(source)
-    if parts is not None:
-        k, count = parts
-        n = surface.n_vertices
-        vertices = (n * k // count, n * (k + 1) // count)
-    selection = Selection.of(surface, receivers, occluders)
-    whole = vertices is None or tuple(vertices) == (0, surface.n_vertices)
-    light = lighting.prepare(source, surface, method, options, effects=effects, lights=lights, scene_lights=scene_lights)
+    with shared_stages():  # a USD scene's meshes, lights and materials from one open stage
+        surface = as_surface(source)
+        if parts is not None:
+            k, count = parts
+            n = surface.n_vertices
+            vertices = (n * k // count, n * (k + 1) // count)
+        selection = Selection.of(surface, receivers, occluders)
+        whole = vertices is None or tuple(vertices) == (0, surface.n_vertices)
+        light = lighting.prepare(
+            source, surface, method, options, effects=effects, lights=lights, scene_lights=scene_lights
+        )
     if light is not None and not whole:
         raise InputError(
             surface.source, f"a lit scene ({light.plan.reasons['direct']}) is baked whole: bake it unsplit, or with --effects ao"
@@ -428,10 +434,13 @@ def _bake_range(
     ``weld``: bake the welded mesh (whole meshes only), results per input vertex.
     ``selection``: trace only its occluders, from its receivers (:func:`_compute_selected`).
     ``light``: a lit scene's :class:`aobake.lighting.LightJob`, computed on the same
-    scene (whole meshes only). ``ground``: a resolved plane every AO method counts."""
+    scene (whole meshes only), through the Embree scene the AO built (one, not two).
+    ``ground``: a resolved plane every AO method counts."""
+    from .tracing import shared_scenes
+
     totals = None
     welded = inverse = None
-    with CompileWatch() as watch:
+    with CompileWatch() as watch, shared_scenes():
         t0 = perf_counter()
         if weld:
             from .mesh import weld_vertices
@@ -451,17 +460,17 @@ def _bake_range(
             ao, n_rays, contacts, attributes = _compute(surface, method, options, progress, vertices, **_plane(ground))
         if light is not None and light.lit:
             attributes, totals = _compute_light(
-                surface, method, options, progress, vertices, (welded, inverse), selection, light, attributes
+                surface, method, options, progress, vertices, (welded, inverse), selection, light, attributes, ground
             )
         seconds = perf_counter() - t0 - watch.seconds
     lo, hi = (0, surface.n_vertices) if vertices is None else vertices
     return PartResult((lo, hi), ao, n_rays, contacts, seconds, watch.seconds, attributes, totals)
 
 
-def _compute_light(surface, method, options, progress, vertices, welding, selection, light, attributes):
+def _compute_light(surface, method, options, progress, vertices, welding, selection, light, attributes, ground=None):
     """A lit scene's irradiance attributes added to ``attributes``, on the scene the AO
     was traced on (``welding``: the AO's ``(welded surface, inverse)``, or Nones; the
-    occluders only); and the light's ray totals."""
+    occluders only) and under its ``ground`` plane; and the light's ray totals."""
     from . import lighting
 
     if vertices is not None and tuple(vertices) != (0, surface.n_vertices):
@@ -472,7 +481,9 @@ def _compute_light(surface, method, options, progress, vertices, welding, select
     if selection is not None and not selection.occluders.all():
         faces = selection.kept_faces(surface)
         scene = selection.scene(scene)
-    extra, totals = lighting.compute(light, scene, method, options, progress, faces=faces, inverse=inverse)
+    extra, totals = lighting.compute(
+        light, scene, method, options, progress, faces=faces, inverse=inverse, ground=ground
+    )
     return {**attributes, **extra}, totals
 
 

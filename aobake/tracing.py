@@ -8,9 +8,11 @@ the word "scene" is kept for what a file holds.
 from __future__ import annotations
 
 import math
+import threading
 from collections import deque
 from collections.abc import Callable, Iterable
 from concurrent.futures import ThreadPoolExecutor
+from contextlib import contextmanager
 
 import numpy as np
 
@@ -19,7 +21,15 @@ from .constants import INFINITE_DISTANCE
 from .errors import InputError
 from .progress import Progress
 
-__all__ = ["INFINITE_DISTANCE", "Tracer", "power_of_two_scale", "split", "trace_chunks"]
+__all__ = [
+    "INFINITE_DISTANCE",
+    "Tracer",
+    "power_of_two_scale",
+    "shared_scenes",
+    "split",
+    "trace_chunks",
+    "tracer_for",
+]
 
 
 class Tracer:
@@ -133,6 +143,11 @@ class Tracer:
         None: unbounded), -1 for none; ``origins`` as for :meth:`occluded`."""
         return self._scene.run(origins, directions, dists=float(self._dists(tfar)), query="INTERSECT")
 
+    def first_hits_within(self, origins, directions, dists: np.ndarray) -> np.ndarray:
+        """:meth:`first_hits` with per-ray lengths ``dists`` in Embree's frame, as for
+        :meth:`occluded_within`."""
+        return self._scene.run(origins, directions, dists=dists, query="INTERSECT")
+
     def intersect(self, origins, directions, tfar: np.ndarray) -> dict:
         """Closest hits: dict with ``primID`` (k,) int32 (-1 = miss), ``tfar`` (mesh
         units, float64), ``Ng`` (k, 3); ``origins`` as for :meth:`occluded`."""
@@ -145,6 +160,38 @@ class Tracer:
         )
         hit["tfar"] = hit["tfar"].astype(np.float64) * self.scale
         return hit
+
+
+_shared = threading.local()
+
+
+@contextmanager
+def shared_scenes():
+    """Within the block (on this thread), :func:`tracer_for` builds one :class:`Tracer`
+    per pair of arrays and hands the same one out again: a lit bake's light pass traces
+    the Embree scene its AO pass built. The arrays must not change inside the block."""
+    outer = getattr(_shared, "scenes", None)
+    if outer is None:
+        _shared.scenes = []
+    try:
+        yield
+    finally:
+        if outer is None:
+            _shared.scenes = None
+
+
+def tracer_for(positions: FloatArray, faces: IndexArray, *, deferred: bool = False) -> Tracer:
+    """``Tracer(positions, faces, deferred=deferred)``, or inside :func:`shared_scenes`
+    the one already made for these very array objects (built unless ``deferred``)."""
+    scenes = getattr(_shared, "scenes", None)
+    if scenes is None:
+        return Tracer(positions, faces, deferred=deferred)
+    for p, f, tracer in scenes:
+        if p is positions and f is faces:
+            return tracer if deferred else tracer.build()
+    tracer = Tracer(positions, faces, deferred=deferred)
+    scenes.append((positions, faces, tracer))
+    return tracer
 
 
 #: Embree 4's C enums (rtcore_common.h, rtcore_geometry.h).

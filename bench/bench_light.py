@@ -6,7 +6,9 @@ and coverage of the per-vertex error estimate.
     PYTHONPATH=. python bench/bench_light.py [--repeats 3] [--threads 2]
 
 Prints ratios measured in one run (goals: throughput >= 0.9x the AO rays', relative RMSE
-<= 2%, coverage >= 95%); docs/bench_light.md records a run.
+<= 2%, coverage >= 95%), the throughput also as CPU time a ray on one thread (the
+work a ray costs, steadier than wall time on a shared machine); docs/bench_light.md
+records runs.
 """
 
 from __future__ import annotations
@@ -68,6 +70,23 @@ def throughput(surface, shading, repeats, threads):
     return best
 
 
+def cpu_per_ray(surface, shading, repeats):
+    """Best-of-``repeats`` CPU nanoseconds a ray of the same three runs on one thread:
+    the work a ray costs, whatever else the machine runs at the time."""
+    best = {"ao": np.inf, "shadow": np.inf, "bounce": np.inf}
+    for _ in range(repeats):
+        t = time.process_time()
+        ao = embree_ao(surface, n_rays=1024, threads=1)
+        best["ao"] = min(best["ao"], (time.process_time() - t) / ao.n_rays * 1e9)
+        t = time.process_time()
+        r = irradiance(surface, shading, n_samples=1024, bounces=0, threads=1)
+        best["shadow"] = min(best["shadow"], (time.process_time() - t) / r.n_shadow_rays * 1e9)
+        t = time.process_time()
+        r = irradiance(surface, shading, n_samples=16, n_indirect=1024, bounces=1, threads=1)
+        best["bounce"] = min(best["bounce"], (time.process_time() - t) / (r.n_shadow_rays + r.n_bounce_rays) * 1e9)
+    return best
+
+
 def trace_only(surface, repeats):
     """Nanoseconds a ray of Embree's any-hit (AO) and closest-hit (path) queries alone, one
     thread, on the same rays: 1,024 cosine-weighted rays a vertex from the AO's origins."""
@@ -111,6 +130,9 @@ def main():
     rates = throughput(surface, shading, args.repeats, args.threads)
     print(f"rays/s: ao {rates['ao']:.3g}, shadow {rates['shadow']:.3g} ({rates['shadow'] / rates['ao']:.2f}x), "
           f"bounce+nee {rates['bounce']:.3g} ({rates['bounce'] / rates['ao']:.2f}x)  [goal >= 0.9x]")
+    cpu = cpu_per_ray(surface, shading, args.repeats)
+    print(f"cpu per ray, 1 thread: ao {cpu['ao']:.1f} ns, shadow {cpu['shadow']:.1f} ns ({cpu['ao'] / cpu['shadow']:.2f}x), "
+          f"bounce+nee {cpu['bounce']:.1f} ns ({cpu['ao'] / cpu['bounce']:.2f}x)")
     ns = trace_only(surface, args.repeats)
     print(f"trace only, 1 thread, same rays: any-hit {ns['any']:.1f} ns/ray, closest-hit {ns['closest']:.1f} ns/ray "
           f"({ns['any'] / ns['closest']:.2f}x the any-hit rate)")

@@ -23,6 +23,13 @@ subdivision 9 over 1024^2 (3,672,067), with ``--huge`` subdivision 10 over 4096^
    cumulative time of each stage function as a share of the whole (the profiler slows
    Python-heavy stages more than native ones: shares, not seconds).
 
+3. Against libigl (721k scene, when ``igl`` is installed): a fresh process running the
+   shortest libigl script of the same bake, ``read_triangle_mesh``, ``per_vertex_normals``,
+   ``embree.ambient_occlusion`` at 64 rays (uniform hemisphere, from points lifted as
+   bench_embree lifts them), the result saved as .npy (less than our PLY writer does);
+   beside it ``aobake bake --rays 64 --measure uniform`` and Bunnell at its defaults,
+   with libigl's wall time over theirs.
+
 Every ratio is of timings taken in this run, round-robin, best of ``--repeats``.
 """
 
@@ -65,6 +72,12 @@ STAGES = [
     ("write", ("write_bake",)),
 ]
 GOALS = {"embree --rays 16": 1.3, "embree --rays 64": 1.1}
+#: Rows set against libigl's whole process at 64 uniform rays (goal: libigl / ours).
+IGL_ROWS = [
+    ("embree --rays 64 --measure uniform", ["--rays", "64", "--seed", "0", "--measure", "uniform"]),
+    ("bunnell (defaults)", ["--method", "bunnell"]),
+]
+IGL_GOAL = 1.5
 SEED = 0  # the --seed of the embree rows
 
 
@@ -149,6 +162,44 @@ def run_bake(code: str, ply: Path, args: list[str], out_dir: str, profile: Path 
     return wall, peak
 
 
+#: libigl's whole process: read, vertex normals, AO at N uniform rays, save (see 3.).
+LIBIGL = """import atexit, shutil, sys
+atexit.register(shutil.copyfile, "/proc/self/status", sys.argv[1])
+import numpy as np
+import igl
+import igl.embree
+V, F = igl.read_triangle_mesh(sys.argv[2])
+N = igl.per_vertex_normals(V, F)
+P = V + 1e-5 * (np.abs(V).max() + 1.0) * N
+np.save(sys.argv[3], 1.0 - igl.embree.ambient_occlusion(V, F, P, N, int(sys.argv[4])))
+"""
+
+
+def run_libigl(ply: Path, n_rays: int, out_dir: str):
+    """(wall seconds, peak RSS bytes) of :data:`LIBIGL` in a fresh process."""
+    status, script = os.path.join(out_dir, "status"), Path(out_dir) / "libigl.py"
+    script.write_text(LIBIGL)
+    cmd = [sys.executable, str(script), status, str(ply), os.path.join(out_dir, "ao.npy"), str(n_rays)]
+    t0 = time.perf_counter()
+    proc = subprocess.run(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    wall = time.perf_counter() - t0
+    if proc.returncode != 0:
+        raise SystemExit(f"libigl failed ({proc.returncode}): {proc.stderr.decode(errors='replace').strip()}")
+    peak = 0
+    for line in Path(status).read_text().splitlines():
+        if line.startswith("VmHWM:"):
+            peak = int(line.split()[1]) * 1024
+    return wall, peak
+
+
+def has_libigl() -> bool:
+    try:
+        import igl.embree  # noqa: F401  (submodule, not imported by `import igl`)
+    except ImportError:
+        return False
+    return True
+
+
 def stage_shares(profile: Path) -> dict[str, float]:
     """Share of the profiled total per stage (cumulative time of the stage's function)."""
     stats = pstats.Stats(str(profile)).stats
@@ -202,6 +253,36 @@ class TraceOnly:
         return run
 
 
+def igl_table(ply: Path, codes, repeats: int, out_dir: str, n_vertices: int) -> None:
+    """Section 3: libigl's whole process at 64 uniform rays against IGL_ROWS, round-robin."""
+    best: dict = {}
+
+    def keep(key, wall, rss):
+        if key not in best or wall < best[key][0]:
+            best[key] = (wall, max(rss, best.get(key, (0, 0))[1]))
+
+    for _ in range(repeats):
+        log("721k libigl 64 uniform rays")
+        keep("libigl", *run_libigl(ply, 64, out_dir))
+        for label, bake_args in IGL_ROWS:
+            for cname, code in codes:
+                log(f"721k {label} [{cname}] (against libigl)")
+                keep((label, cname), *run_bake(code, ply, bake_args, out_dir))
+    igl_wall, igl_rss = best["libigl"]
+    rows = [["libigl 64 rays (uniform)", "", f"{igl_wall:.2f} s", "1.00x",
+             f"{igl_rss / 2**20:.0f} MiB", f"{igl_rss / n_vertices:.0f}"]]  # fmt: skip
+    for label, _ in IGL_ROWS:
+        for cname, _ in codes:
+            wall, rss = best[(label, cname)]
+            rows.append([label, cname, f"{wall:.2f} s", f"{igl_wall / wall:.2f}x (goal >= {IGL_GOAL})",
+                         f"{rss / 2**20:.0f} MiB", f"{rss / n_vertices:.0f}"])  # fmt: skip
+    C.print_table(
+        f"721k: against libigl's whole process (64 uniform rays), load average now {os.getloadavg()[0]:.1f}",
+        ["bake", "code", "wall", "libigl wall / wall", "peak RSS", "bytes/vertex"],
+        rows,
+    )
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--big", action="store_true", help="also the ~3.7M-vertex scene")
@@ -213,7 +294,15 @@ def main(argv=None) -> int:
     p.add_argument("--no-profile", action="store_true", help="skip the stage shares")
     p.add_argument("--big-rows", default="", help="comma-separated labels: only these rows on "
                    "the larger scenes (e.g. 'embree --rays 1,embree --rays 16')")  # fmt: skip
+    p.add_argument("--no-libigl", action="store_true", help="skip the libigl comparison")
+    p.add_argument("--only", help="comma-separated parts of the row labels to run (e.g. 'bunnell,rays 16')")
     args = p.parse_args(argv)
+    configs = CONFIGS
+    if args.only:
+        wanted = [w.strip() for w in args.only.split(",") if w.strip()]
+        configs = [c for c in CONFIGS if any(w in c[0] for w in wanted)]
+        if not configs:
+            p.error(f"--only {args.only!r} matches no row of {[c[0] for c in CONFIGS]}")
     from aobake.constants import CHUNK_RAYS
 
     here = str(C.ROOT)
@@ -229,8 +318,9 @@ def main(argv=None) -> int:
     with tempfile.TemporaryDirectory() as out_dir:
         log("warming up the numba cache of each checkout")
         warm = scene_file("721k")
+        libigl = has_libigl() and not args.no_libigl
         for _, code in codes:
-            for _, bake_args in CONFIGS:
+            for _, bake_args in configs + (IGL_ROWS if libigl else []):
                 run_bake(code, warm, bake_args, out_dir)
         big_rows = [r.strip() for r in args.big_rows.split(",") if r.strip()]
         for name in names:
@@ -247,12 +337,12 @@ def main(argv=None) -> int:
                 log("preparing trace-only rays")
                 trace = TraceOnly(ply)
             rows = []
-            configs = CONFIGS
+            scene_configs = configs
             if name != "721k" and big_rows:
-                configs = [c for c in CONFIGS if c[0] in big_rows]
+                scene_configs = [c for c in configs if c[0] in big_rows]
             if name == "27M":  # this tree's embree rows only: the others need more memory
-                configs = [c for c in configs if c[0].startswith("embree")]
-            for label, bake_args in configs:
+                scene_configs = [c for c in scene_configs if c[0].startswith("embree")]
+            for label, bake_args in scene_configs:
                 best = {}
                 rays = int(bake_args[1]) if bake_args[0] == "--rays" else None
                 tr_run = trace.runner(rays, args.threads, CHUNK_RAYS) if trace and rays else None
@@ -284,9 +374,11 @@ def main(argv=None) -> int:
                 ["bake", "code", "wall", "embreex trace-only", "wall / trace", "peak RSS", "bytes/vertex"],
                 rows,
             )
+            if name == "721k" and libigl:
+                igl_table(ply, codes, args.repeats, out_dir, n_vertices)
             if not args.no_profile and name == "721k":
                 prof_rows = []
-                for label, bake_args in CONFIGS:
+                for label, bake_args in configs:
                     for cname, code in codes:
                         prof = Path(out_dir) / "run.prof"
                         log(f"profiling {name} {label} [{cname}]")

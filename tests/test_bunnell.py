@@ -14,7 +14,7 @@ from aobake.kernels import hierarchy as KH
 from aobake.kernels import polygon as KP
 from aobake.kernels import treepass as KT
 from aobake.kernels import treewalk as KTW
-from aobake.mesh import Surface
+from aobake.mesh import Surface, surface_from_arrays
 from aobake.methods import bunnell as B
 from aobake.methods.bunnell import passes as P
 from aobake.methods.bunnell import tree as H
@@ -239,6 +239,37 @@ def test_node_coherence_matches_direct_sums():
     flat = [q for q in range(t.n_nodes) if np.ptp(e.positions[t.order[t.start[q] : t.stop[q]], 2]) == 0]
     assert len(flat) >= 4
     assert np.all(c[flat] > 1 - 1e-12)  # one plate: every normal equal
+
+
+def test_node_coherence_and_tree_keys_are_the_numpy_formulations():
+    """The compiled node coherence and tree keys give the bits of their numpy
+    formulations (prefix sums by np.cumsum, np.linalg.norm; floor of the scaled offsets),
+    on a shuffled scene at a large offset and on random normals and areas."""
+    rng = np.random.default_rng(11)
+    s = sphere_on_plane(subdivisions=3, cells=24)
+    shuffle = rng.permutation(s.n_vertices)
+    back = np.argsort(shuffle)
+    s = surface_from_arrays(s.positions[shuffle] * 3e3 + 1e5, back[s.faces], s.normals[shuffle])
+    e = B.build_elements(s)
+    t = B.build_tree(e, leaf_size=8)
+    for normals, areas in ((e.normals, e.areas),
+                           (rng.normal(size=e.normals.shape), rng.uniform(0, 1e-3, e.n_vertices))):
+        am = normals[t.order] * areas[t.order][:, None]
+        cum = np.zeros((t.order.shape[0] + 1, 4))
+        np.cumsum(np.column_stack([am, areas[t.order]]), axis=0, out=cum[1:])
+        sums = cum[t.stop] - cum[t.start]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            want = np.clip(np.nan_to_num(np.linalg.norm(sums[:, :3], axis=1) / sums[:, 3], nan=1.0), 0, 1)
+        np.testing.assert_array_equal(H.node_coherence(t, normals, areas), want)
+    from aobake.constants import TREE_KEY_STEPS
+
+    for p in (e.positions[e.emitter_index], s.positions, rng.normal(size=(5000, 3)) * 1e-7 + 3.0):
+        lo = p.min(axis=0)
+        step = TREE_KEY_STEPS / float((p.max(axis=0) - lo).max())
+        want = np.floor((p - lo) * step + 0.5).astype(np.int64)
+        np.testing.assert_array_equal(H.tree_keys(p), want)
+    rows = rng.choice(s.n_vertices, 300, replace=False)
+    np.testing.assert_array_equal(H.tree_keys(s.positions, rows), H.tree_keys(s.positions[rows]))
 
 
 def test_packed_nodes_open_incoherent_nodes_sooner():

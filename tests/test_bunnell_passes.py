@@ -172,3 +172,41 @@ def test_cumulative_bins_match_max_distance():
         np.testing.assert_allclose(binned[:, :, b], cut[:, :, -1], rtol=0, atol=1e-12)
     total = kernel_sums(e, None, np.ones(e.n_vertices))[:, :, -1]
     np.testing.assert_allclose(binned[:, :, -1], total, rtol=0, atol=1e-12)
+
+
+def test_one_level_weights_give_the_same_sums():
+    """A pass whose weight levels are all equal reads level 0 only: (n,) weights (one
+    level in the tree's tables) give bit for bit the sums of tables of N_LEVELS levels,
+    with and without a tree, and a leveled pass after it grows the tables."""
+    s = small_scene()
+    e = B.build_elements(s)
+    rng = np.random.default_rng(3)
+    w = rng.uniform(0.2, 1.0, e.n_vertices)
+    for tree in (None, B.build_tree(e, leaf_size=4)):
+        one = P._Pass(e, tree, 2.0, 4.0, K.MEASURE_COSINE, np.inf)
+        spread = P._Pass(e, tree, 2.0, 4.0, K.MEASURE_COSINE, np.inf)
+        if tree is not None:
+            spread._levels(K.N_LEVELS)  # the tables of every level, as a leveled pass has
+        for binned in (False, True):
+            a, fa = one.sums(w, NullProgress(), binned=binned)
+            b, fb = spread.sums(np.repeat(w[:, None], K.N_LEVELS, axis=1), NullProgress(), binned=binned)
+            np.testing.assert_array_equal(a, b)
+            np.testing.assert_array_equal(fa, fb)
+        if tree is not None:
+            assert one.weights.shape == (e.n_emitters, 1)
+            assert one.moments.shape[1] == 1
+            levels = np.repeat(w[:, None], K.N_LEVELS, axis=1) * np.linspace(1.0, 0.5, K.N_LEVELS)
+            a = one.sums(levels, NullProgress())[0]  # leveled: grown to N_LEVELS
+            assert one.weights.shape == (e.n_emitters, K.N_LEVELS)
+            np.testing.assert_array_equal(a, spread.sums(levels, NullProgress())[0])
+
+
+def test_scratch_is_a_writable_array_of_its_shape():
+    """The pass's list buffers (passes.scratch): C-contiguous, writable, the asked shape
+    and dtype (numba types them as numpy's own), empty shapes included."""
+    for shape, dtype in (((2, 18, 1000), np.float32), ((2, 2, 7), np.int64), ((2, 26, 0), np.float32)):
+        a = P.scratch(shape, dtype)
+        assert a.shape == shape and a.dtype == dtype
+        assert a.flags.c_contiguous and a.flags.writeable and a.flags.aligned
+        a[...] = 1
+        assert np.all(a == 1)

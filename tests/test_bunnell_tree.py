@@ -257,6 +257,14 @@ def test_cells_in_tree_order_are_the_same_cells():
     t = B.build_tree(e, leaf_size=4)
     perm, (positions, start, corners, reach) = P._cells_in_tree_order(e, t.order)
     inverse = np.argsort(perm)
+    # the table built in tree order is the input order's (cell_corners), rows moved and
+    # corners renumbered, each cell's rows in the same (face) order
+    sizes = np.diff(e.corner_start)
+    np.testing.assert_array_equal(np.diff(start), sizes[perm])
+    rows = np.concatenate([np.arange(e.corner_start[v], e.corner_start[v + 1]) for v in perm])
+    np.testing.assert_array_equal(corners, inverse[e.corners[rows]])
+    assert corners.dtype == np.int32 and e.corners.dtype == np.int64
+    np.testing.assert_array_equal(positions, e.positions[perm])
     quad = np.empty((4, 3))
     rng = np.random.default_rng(0)
     skipped = 0

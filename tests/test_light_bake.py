@@ -649,3 +649,57 @@ def test_obj_mtl_albedo_and_emission_in_the_lit_colour(runner, tmp_path):
     np.testing.assert_allclose(colour, _lit(albedo, e, -1.0, emission), atol=0.004)
     custom = _usd_custom(out)[0]
     assert custom["emitting_triangles"] == 2 and custom["lights"] == "none" and custom["exposure"] == -1.0
+
+
+def test_ground_occludes_a_lit_bake(runner, tmp_path):
+    """--ground on a lit bake: a lamp under the plane lights the box's underside without
+    it and nothing with it (shadow and bounce rays alike); the output records the plane."""
+    box = trimesh.creation.box((1.0, 1.0, 1.0))
+    box.apply_translation((0.0, 0.0, 1.0))
+    path = tmp_path / "box.ply"
+    box.export(path)
+    args = ["bake", path, *FEW, "-q", "--up", "Z", "--light", "point:0,0,-1:5"]
+    _ok(runner, [*args, "-o", tmp_path / "open.ply"])
+    _ok(runner, [*args, "-o", tmp_path / "ground.ply", "--ground", "0"])
+    assert _ply_columns(tmp_path / "open.ply", IRR).max() > 0
+    assert _ply_columns(tmp_path / "ground.ply", IRR).max() == 0
+    assert any("ground=0" in c for c in _ply_comments(tmp_path / "ground.ply"))
+
+
+def test_a_lit_embree_bake_builds_one_embree_scene(runner, scene_ply, tmp_path, monkeypatch):
+    """The light pass traces the AO's Embree scene (one build, not two); outside a bake
+    every call builds its own."""
+    from aobake import tracing
+
+    built = []
+    real = tracing.Tracer.__init__
+
+    def counting(self, *args, **kwargs):
+        built.append(kwargs.get("robust", False))
+        real(self, *args, **kwargs)
+
+    monkeypatch.setattr(tracing.Tracer, "__init__", counting)
+    _ok(runner, ["bake", scene_ply, "-o", tmp_path / "lit.ply", *FEW, "-q", "--light", "distant:0,0,1"])
+    assert built.count(False) == 1  # (the contacts' robust local scenes aside)
+    surface = load_mesh(scene_ply)
+    assert tracing.tracer_for(surface.positions, surface.faces) is not tracing.tracer_for(surface.positions, surface.faces)
+    with tracing.shared_scenes():
+        assert tracing.tracer_for(surface.positions, surface.faces) is tracing.tracer_for(surface.positions, surface.faces)
+
+
+def test_a_lit_usd_bake_opens_its_stage_once(tmp_path, monkeypatch):
+    """Meshes, lights and materials come from one open stage (it was two)."""
+    from pxr import Usd
+
+    from aobake.pipeline import bake_file
+
+    opened = []
+    real = Usd.Stage.Open
+
+    def counting(*args, **kwargs):
+        opened.append(str(args[0]))
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(Usd.Stage, "Open", counting)
+    bake_file(CORNELL, tmp_path / "o.ply", n_rays=4, light_samples=2, indirect_rays=2)
+    assert len(opened) == 1 and opened[0].endswith("cornell_box.usda")

@@ -306,3 +306,115 @@ def test_lazy_exports_and_defaults():
     assert (opts.n_samples, opts.bounces, opts.n_indirect, opts.tolerance) == (64, 1, 256, None)
     with pytest.raises(ValueError, match="bounces"):
         embree.LightOptions(bounces=-1)
+
+
+def test_last_bounce_ray_only_where_a_dome_can_be_seen():
+    """Inside a closed sphere lit by a light without shadows every path hits and its
+    next-event sample costs no ray: K bounces cast K rays a path, the K+1-th (it only
+    looks for the dome) only when there is a dome, which it then never sees."""
+    surface = sphere(1.0, 1, inward=True)
+    n, paths = surface.n_vertices, 8
+    point = Light.make("point", "p", (1, 1, 1), position=(0.1, 0.0, 0.0), shadow=False)
+    dome = Light.make("dome", "sky", (3, 3, 3))
+    for bounces in (1, 2):
+        plain = lit(surface, [point], bounces=bounces, n_indirect=paths, n_samples=4)
+        domed = lit(surface, [point, dome], bounces=bounces, n_indirect=paths, n_samples=4)
+        assert plain.n_bounce_rays == n * paths * bounces
+        assert domed.n_bounce_rays == n * paths * (bounces + 1)
+        for name in ("direct", "indirect", "error"):
+            assert np.array_equal(getattr(plain, name), getattr(domed, name)), name
+        assert plain.indirect.min() > 0
+
+
+# -- the ground plane (--ground) ---------------------------------------------------------------
+
+
+def test_ground_leaves_a_distant_light_and_reflects_it():
+    """A tiny receiver 1 above an infinite plane, distant light at 45 degrees: the direct
+    term is E_perp cos(theta) bit for bit with or without the plane; a receiver facing
+    up sees none of the plane; one facing sideways sees it lit by E_perp (l.up), radiance
+    rho E_p / pi over half its hemisphere: E_indirect = rho E_p (1 - n.up) / 2."""
+    from aobake.ground import ALBEDO, Ground
+
+    plane = Ground(2, -1.0)
+    sun = Light.make("distant", "sun", (1, 2, 3), direction=(1.0, 0.0, 1.0))
+    cos_l = 1.0 / math.sqrt(2.0)
+    up = one_point((0.0, 0.0, 1.0))
+    a = lit(up, [sun], n_indirect=64)
+    b = lit(up, [sun], n_indirect=64, ground=plane)
+    assert np.array_equal(a.direct, b.direct) and b.indirect[0].max() == 0.0
+    side = one_point((1.0, 0.0, 0.0))
+    r = lit(side, [sun], n_indirect=256, ground=plane)
+    assert np.allclose(r.direct[0], np.array([1, 2, 3]) * cos_l)
+    want = ALBEDO * np.array([1, 2, 3]) * cos_l / 2.0
+    assert np.all(np.abs(r.indirect[0] - want) <= r.error[0] + 1e-3 * want)
+    assert r.indirect[0] == pytest.approx(want, rel=0.03)
+    assert lit(side, [sun], n_indirect=256).indirect[0].max() == 0.0  # nothing else reflects
+
+
+def test_ground_hides_a_light_below_it_unless_shadows_are_off():
+    from aobake.ground import Ground
+
+    down = one_point((0.0, 0.0, -1.0))
+    lamp = Light.make("point", "lamp", (4, 4, 4), position=(0.0, 0.0, -2.0))
+    assert np.allclose(lit(down, [lamp]).direct[0], 1.0)  # I / d^2, d = 2
+    hidden = lit(down, [lamp], ground=Ground(2, -1.0), bounces=2, n_indirect=16)
+    assert hidden.irradiance[0].max() == 0.0 and hidden.n_shadow_rays == 3
+    no_shadow = Light.make("point", "lamp", (4, 4, 4), position=(0.0, 0.0, -2.0), shadow=False)
+    assert np.allclose(lit(down, [no_shadow], ground=Ground(2, -1.0), bounces=0).direct[0], 1.0)
+
+
+def test_ground_under_a_wall_vertex_on_it():
+    """A vertex on the plane facing sideways under a uniform dome: half its hemisphere
+    sees the dome, pi L / 2; one bounce adds the plane's rho pi L over the other half."""
+    from aobake.ground import ALBEDO, Ground
+
+    wall = one_point((1.0, 0.0, 0.0))
+    sky = Light.make("dome", "sky", (1.0, 1.0, 1.0))
+    r = lit(wall, [sky], n_indirect=256, bounces=1, ground=Ground(2, 0.0))
+    assert r.direct[0] == pytest.approx(np.full(3, math.pi / 2), rel=0.02)
+    assert r.indirect[0] == pytest.approx(np.full(3, ALBEDO * math.pi / 2), rel=0.02)
+
+
+def test_ground_under_a_vertex_in_it_below_a_small_disk():
+    """A vertex lying in the plane, facing up under a coaxial disk of radius a at height
+    h, dome L: E = pi L (1 - a^2 / (a^2 + h^2)) with or without the plane (it sees none
+    of it, and its rays start on it)."""
+    from aobake.ground import Ground
+
+    a, h, k = 0.5, 1.0, 64
+    angles = np.arange(k) * 2 * math.pi / k
+    ring = np.stack([a * np.cos(angles), a * np.sin(angles), np.full(k, h)], axis=1)
+    floor = np.array([[0.0, 0.0, 0.0], [1e-4, 0.0, 0.0], [0.0, 1e-4, 0.0]])
+    pos = np.vstack([floor, [[0.0, 0.0, h]], ring])
+    fan = np.array([[3, 4 + (i + 1) % k, 4 + i] for i in range(k)])
+    normals = np.vstack([np.tile([0.0, 0.0, 1.0], (3, 1)), np.tile([0.0, 0.0, -1.0], (k + 1, 1))])
+    surface = surface_from_arrays(pos, np.vstack([[[0, 1, 2]], fan]), normals)
+    sky = Light.make("dome", "sky", (1.0, 1.0, 1.0))
+    a_eff2 = a * a * k / (2 * math.pi) * math.sin(2 * math.pi / k)  # the polygon's area / pi
+    want = math.pi * (1.0 - a_eff2 / (a_eff2 + h * h))
+    for ground in (None, Ground(2, 0.0)):
+        r = lit(surface, [sky], n_indirect=1024, bounces=0, ground=ground)
+        assert r.direct[0, 0] == pytest.approx(want, rel=0.01)
+
+
+def test_ground_leaves_a_modelled_floor_in_it_its_albedo():
+    """A floor modelled in the plane keeps its hits (and its albedo, 0.8 here): a
+    receiver above it facing down gets the same light with the plane as without, but
+    for the few paths that pass the floor's edge and now meet the lit plane."""
+    from dataclasses import replace
+
+    from aobake.ground import Ground
+
+    pos, faces = ground_grid(50.0, 2)
+    receiver = np.array([[0.0, 0.0, 1.0], [1e-4, 0.0, 1.0], [0.0, 1e-4, 1.0]])
+    normals = np.vstack([np.tile([0.0, 0.0, 1.0], (len(pos), 1)), np.tile([0.0, 0.0, -1.0], (3, 1))])
+    surface = surface_from_arrays(np.vstack([pos, receiver]), np.vstack([faces, [[len(pos), len(pos) + 2, len(pos) + 1]]]), normals)
+    sun = Light.make("distant", "sun", (1.0, 1.0, 1.0), direction=(0.0, 0.0, 1.0))
+    shading = default_shading(surface.n_vertices, surface.n_faces, [sun])
+    shading = replace(shading, face_albedo=np.full((surface.n_faces, 3), 0.8))
+    a = irradiance(surface, shading, n_indirect=256)
+    b = irradiance(surface, shading, n_indirect=256, ground=Ground(2, 0.0))
+    top = len(pos)
+    assert a.indirect[top, 0] == pytest.approx(0.8, rel=0.02)  # the floor fills its view
+    assert np.allclose(a.indirect[top:], b.indirect[top:], rtol=2e-3)  # (0.66 if the plane took its hits)

@@ -170,6 +170,8 @@ def test_help_shows_per_method_and_per_view_defaults(runner, monkeypatch):
     assert "embree: Random seed [default: 0]" in text
     assert "Ignore geometry farther than this from the vertex (mesh units) [default: unbounded]" in text
     assert "[default: off]" in text  # --tolerance
+    # an unbounded number is a FLOAT, with no "x<=None" range
+    assert "--exposure FLOAT " in text and "None]" not in text
     # an option two methods take with different defaults shows both
     real = methods.options_class
 

@@ -18,8 +18,10 @@ from __future__ import annotations
 
 import math
 import re
+import threading
 import traceback
 from collections.abc import Mapping
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -208,12 +210,35 @@ def read_ao_usd(path: str | Path) -> np.ndarray:
     return np.concatenate(parts)
 
 
+_shared = threading.local()
+
+
+@contextmanager
+def shared_stages():
+    """Within the block (on this thread), the stage the mesh reader opened fresh from
+    disk is the one :func:`_open_fresh` hands out for that file: a bake reads its meshes
+    and then its lights and materials from one open stage, not two. Dropped at the end
+    of the block (before anything is written)."""
+    outer = getattr(_shared, "stages", None)
+    if outer is None:
+        _shared.stages = {}
+    try:
+        yield
+    finally:
+        if outer is None:
+            _shared.stages = None
+
+
 def _open_fresh(path: Path, Sdf, Usd):
     """Open ``path`` as a stage whose root layer reflects the file on disk now.
 
     A layer already registered for the path (someone holds a stage on it) may predate
-    the file, so it is read through an anonymous layer instead of the registry.
+    the file, so it is read through an anonymous layer instead of the registry. Inside
+    :func:`shared_stages`, the stage the mesh reader opened from disk for the path.
     """
+    stages = getattr(_shared, "stages", None)
+    if stages is not None and str(path.resolve()) in stages:
+        return stages[str(path.resolve())]
     try:
         with foreign_stderr(path.name):
             if Sdf.Layer.Find(str(path.resolve())) is not None:
@@ -462,10 +487,16 @@ def read_parts(path: Path, metadata: dict, time: float | None = None) -> list[Ra
             path, "reading USD needs the usd-core package (pip install usd-core)"
         ) from exc
 
+    from pxr import Sdf
+
     with foreign_stderr(path.name):
+        registered = Sdf.Layer.Find(str(Path(path).resolve())) is not None
         stage = Usd.Stage.Open(str(path))
     if stage is None:
         raise InputError(path, "cannot read as USD: the stage did not open")
+    stages = getattr(_shared, "stages", None)
+    if stages is not None and not registered:  # read from disk now: as fresh as _open_fresh's
+        stages[str(Path(path).resolve())] = stage
     metadata.update(
         up_axis=str(UsdGeom.GetStageUpAxis(stage)),
         meters_per_unit=float(UsdGeom.GetStageMetersPerUnit(stage)),

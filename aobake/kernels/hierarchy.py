@@ -408,3 +408,72 @@ def leaf_representatives(positions, normals, areas, order, skip, start, stop, co
             j = order[t]
             c = normals[j, 0] * normals[rep, 0] + normals[j, 1] * normals[rep, 1] + normals[j, 2] * normals[rep, 2]
             rep_of[j] = rep if c >= cos_min else j
+
+
+@njit(cache=True, error_model="numpy")
+def node_coherence(normals, areas, order, start, stop, out):
+    """Per node ``out[q] = |sum A m| / sum A`` over its disks (unit normals m), clipped to
+    [0, 1], 1 where it is not a number: prefix sums of ``(A m, A)`` in tree order, in
+    float64, then one difference per node, O(k + m). The sums and the norm add in the
+    order numpy's ``cumsum`` and ``linalg.norm`` did (bit for bit the numpy formulation,
+    tests/test_bunnell.py).
+
+    Parameters
+    ----------
+    normals : (n, 3) float64
+    areas : (n,) float64
+    order : (k,) int64
+    start, stop : (m,) int64
+    out : (m,) float64
+    """
+    k = order.shape[0]
+    cum = np.zeros((k + 1, 4))
+    for t in range(k):
+        j = order[t]
+        a = areas[j]
+        cum[t + 1, 0] = cum[t, 0] + normals[j, 0] * a
+        cum[t + 1, 1] = cum[t, 1] + normals[j, 1] * a
+        cum[t + 1, 2] = cum[t, 2] + normals[j, 2] * a
+        cum[t + 1, 3] = cum[t, 3] + a
+    for q in range(start.shape[0]):
+        lo = start[q]
+        hi = stop[q]
+        x = cum[hi, 0] - cum[lo, 0]
+        y = cum[hi, 1] - cum[lo, 1]
+        z = cum[hi, 2] - cum[lo, 2]
+        c = np.sqrt(x * x + y * y + z * z) / (cum[hi, 3] - cum[lo, 3])
+        out[q] = 1.0 if np.isnan(c) else min(max(c, 0.0), 1.0)
+
+
+@njit(cache=True, error_model="numpy", parallel=True)
+def quantised_keys(positions, rows, steps, out):
+    """The tree's integer keys: ``out[t] = floor((positions[rows[t]] - lo) * (steps / E)
+    + 0.5)`` (int64) with lo the least coordinates of those rows and E their bounding
+    box's largest extent, as numpy computed them; all zeros when E is not > 0.
+
+    Parameters
+    ----------
+    positions : (n, 3) float64
+    rows : (k,) int64, k >= 1
+    steps : float
+    out : (k, 3) int64
+    """
+    lo = positions[rows[0]].copy()
+    hi = lo.copy()
+    for t in range(1, rows.shape[0]):
+        j = rows[t]
+        for c in range(3):
+            v = positions[j, c]
+            if v < lo[c]:
+                lo[c] = v
+            if v > hi[c]:
+                hi[c] = v
+    extent = max(hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2])
+    if not extent > 0.0:
+        out[:] = 0
+        return
+    step = steps / extent
+    for t in prange(rows.shape[0]):
+        j = rows[t]
+        for c in range(3):
+            out[t, c] = np.int64(np.floor((positions[j, c] - lo[c]) * step + 0.5))

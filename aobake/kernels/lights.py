@@ -36,6 +36,11 @@ P_SHADOW = 23  # 1.0: casts shadow rays
 P_AREA = 24
 N_PARAMS = 25
 
+# The ground plane's row (``plane``): up axis (-1: no plane), height (recentred mesh
+# units), offset of a path's point on it (relative: eps x (magnitude + |point|)), albedo.
+G_AXIS, G_HEIGHT, G_EPS, G_MAGNITUDE, G_ALBEDO = 0, 1, 2, 3, 4
+G_SIZE = 7
+
 # Why a receiver is not lit by a light (reach codes).
 REACH_OK, REACH_BEHIND, REACH_CONE, REACH_RANGE, REACH_NONE = range(5)
 
@@ -112,17 +117,19 @@ def _cone_direction(ax, ay, az, cos_max, u0, u1):
 
 
 @njit(cache=True, nogil=True)
-def sample_light(kind, p, ox, oy, oz, nx, ny, nz, u0, u1):
-    """One sample of light row ``p`` seen from o with unit normal n.
+def sample_light(kind, p, i, ox, oy, oz, nx, ny, nz, u0, u1):
+    """One sample of light ``i`` (row i of ``params`` ``p``: indexing the table, not
+    a row view, saves a view's reference counting per sample) seen from o with unit
+    normal n.
 
     Returns (wr, wg, wb, dx, dy, dz, dist): the irradiance estimate if the unit direction
     d is unoccluded up to ``dist`` (inf: to infinity); w = 0 when the sample adds
     nothing (behind the tangent plane or the light, outside the cone: no ray then).
     """
-    vr, vg, vb = p[P_VALUE], p[P_VALUE + 1], p[P_VALUE + 2]
+    vr, vg, vb = p[i, P_VALUE], p[i, P_VALUE + 1], p[i, P_VALUE + 2]
     if kind == DISTANT:
-        ax, ay, az = p[P_DIR], p[P_DIR + 1], p[P_DIR + 2]
-        cos_half = p[P_COS_HALF]
+        ax, ay, az = p[i, P_DIR], p[i, P_DIR + 1], p[i, P_DIR + 2]
+        cos_half = p[i, P_COS_HALF]
         scale = 1.0
         if cos_half < 1.0:
             ax, ay, az = _cone_direction(ax, ay, az, cos_half, u0, u1)
@@ -134,7 +141,7 @@ def sample_light(kind, p, ox, oy, oz, nx, ny, nz, u0, u1):
         f = c * scale
         return vr * f, vg * f, vb * f, ax, ay, az, np.inf
     if kind == POINT or kind == SPOT:
-        tx, ty, tz = p[P_POS] - ox, p[P_POS + 1] - oy, p[P_POS + 2] - oz
+        tx, ty, tz = p[i, P_POS] - ox, p[i, P_POS + 1] - oy, p[i, P_POS + 2] - oz
         d2 = tx * tx + ty * ty + tz * tz
         d = math.sqrt(d2)
         if not d > 0.0:
@@ -146,15 +153,15 @@ def sample_light(kind, p, ox, oy, oz, nx, ny, nz, u0, u1):
         f = c / d2
         if kind == SPOT:
             # glTF KHR_lights_punctual: squared linear ramp in cos between the cones
-            cd = -_dot(tx, ty, tz, p[P_DIR], p[P_DIR + 1], p[P_DIR + 2])
-            ramp = (cd - p[P_COS_OUTER]) / max(1e-3, p[P_COS_INNER] - p[P_COS_OUTER])
+            cd = -_dot(tx, ty, tz, p[i, P_DIR], p[i, P_DIR + 1], p[i, P_DIR + 2])
+            ramp = (cd - p[i, P_COS_OUTER]) / max(1e-3, p[i, P_COS_INNER] - p[i, P_COS_OUTER])
             ramp = min(1.0, max(0.0, ramp))
             f *= ramp * ramp
         return vr * f, vg * f, vb * f, tx, ty, tz, d
     if kind == SPHERE:
-        tx, ty, tz = p[P_POS] - ox, p[P_POS + 1] - oy, p[P_POS + 2] - oz
+        tx, ty, tz = p[i, P_POS] - ox, p[i, P_POS + 1] - oy, p[i, P_POS + 2] - oz
         d2 = tx * tx + ty * ty + tz * tz
-        r = p[P_RADIUS]
+        r = p[i, P_RADIUS]
         if not d2 > r * r:
             return 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0
         d = math.sqrt(d2)
@@ -168,19 +175,19 @@ def sample_light(kind, p, ox, oy, oz, nx, ny, nz, u0, u1):
         f = c * _TWO_PI * (1.0 - cos_max)
         return vr * f, vg * f, vb * f, dx, dy, dz, dist
     if kind == RECT or kind == DISK:
-        mx, my, mz = p[P_NORMAL], p[P_NORMAL + 1], p[P_NORMAL + 2]
+        mx, my, mz = p[i, P_NORMAL], p[i, P_NORMAL + 1], p[i, P_NORMAL + 2]
         if kind == RECT:
             a, b = 2.0 * u0 - 1.0, 2.0 * u1 - 1.0
-            qx = p[P_POS] + a * p[P_U] + b * p[P_V]
-            qy = p[P_POS + 1] + a * p[P_U + 1] + b * p[P_V + 1]
-            qz = p[P_POS + 2] + a * p[P_U + 2] + b * p[P_V + 2]
+            qx = p[i, P_POS] + a * p[i, P_U] + b * p[i, P_V]
+            qy = p[i, P_POS + 1] + a * p[i, P_U + 1] + b * p[i, P_V + 1]
+            qz = p[i, P_POS + 2] + a * p[i, P_U + 2] + b * p[i, P_V + 2]
         else:
             a, b = warps.square_to_uniform_disk_concentric(u0, u1)
-            r = p[P_RADIUS]
+            r = p[i, P_RADIUS]
             ex, ey, ez, fx, fy, fz = warps.frame(mx, my, mz)
-            qx = p[P_POS] + r * (a * ex + b * fx)
-            qy = p[P_POS + 1] + r * (a * ey + b * fy)
-            qz = p[P_POS + 2] + r * (a * ez + b * fz)
+            qx = p[i, P_POS] + r * (a * ex + b * fx)
+            qy = p[i, P_POS + 1] + r * (a * ey + b * fy)
+            qz = p[i, P_POS + 2] + r * (a * ez + b * fz)
         tx, ty, tz = qx - ox, qy - oy, qz - oz
         d2 = tx * tx + ty * ty + tz * tz
         d = math.sqrt(d2)
@@ -191,7 +198,7 @@ def sample_light(kind, p, ox, oy, oz, nx, ny, nz, u0, u1):
         cl = -_dot(mx, my, mz, tx, ty, tz)
         if not (c > 0.0 and cl > 0.0):
             return 0.0, 0.0, 0.0, tx, ty, tz, d
-        f = c * cl * p[P_AREA] / d2
+        f = c * cl * p[i, P_AREA] / d2
         return vr * f, vg * f, vb * f, tx, ty, tz, d
     # dome: a cosine-weighted direction that escapes sees pi L
     x, y, z = warps.square_to_cosine_hemisphere(u0, u1)
@@ -296,7 +303,7 @@ def direct_samples(
             for j in range(j_lo[c], j_hi[c]):
                 u0, u1 = rng.scrambled_sobol2_seeded(j, s0, s1)
                 if c < n_lights:
-                    wr, wg, wb, dx, dy, dz, dist = sample_light(kinds[c], params[c], ox, oy, oz, nx, ny, nz, u0, u1)
+                    wr, wg, wb, dx, dy, dz, dist = sample_light(kinds[c], params, c, ox, oy, oz, nx, ny, nz, u0, u1)
                 else:
                     wr, wg, wb, dx, dy, dz, dist = sample_emitter(
                         ox, oy, oz, nx, ny, nz, u0, u1, pos, faces, tris, cdf, emission, lum_total, shorten
@@ -349,22 +356,45 @@ def add_samples(ids, w, row, comp, m, sums, squares):
 
 
 @njit(cache=True, nogil=True)
-def start_paths(vertices, per, origins, normals, scale, vertex_of, path_org, path_normal, alive, throughput, value_d, value_i):
-    """Paths 0..len(vertices) * per - 1, ``per`` a vertex in order: at the vertex's offset
-    origin (float64, mesh units) and normal, alive where it has one, throughput 1."""
+def first_rays(
+    vertices, per, p0, origins, normals, keys, vertex_of, alive, throughput, value_d, value_i, out_live, out_org, out_dir
+):  # fmt: skip
+    """Start paths 0..len(vertices) * per - 1 (``per`` a vertex in order, path s of a
+    vertex is its sample ``p0 + s``) and write their first rays, compacted as
+    :func:`bounce_directions` writes them at depth 0 (same values): from the vertex's
+    offset origin, a scrambled Sobol cosine-weighted direction about its normal, the
+    frame made once a vertex. Paths of a vertex without a normal are dead. Returns the
+    number of rays."""
+    m = 0
     for a in range(vertices.shape[0]):
         v = vertices[a]
-        has_normal = normals[v, 0] != 0.0 or normals[v, 1] != 0.0 or normals[v, 2] != 0.0
+        nx, ny, nz = normals[v, 0], normals[v, 1], normals[v, 2]
+        has_normal = nx != 0.0 or ny != 0.0 or nz != 0.0
         for s in range(per):
             p = a * per + s
             vertex_of[p] = v
             alive[p] = has_normal
             for k in range(3):
-                path_org[p, k] = np.float64(origins[v, k]) * scale
-                path_normal[p, k] = normals[v, k]
                 throughput[p, k] = 1.0
                 value_d[p, k] = 0.0
                 value_i[p, k] = 0.0
+        if not has_normal:
+            continue
+        s0, s1 = rng.scramble_seeds(rng.hash2(keys[v], np.uint64(1000003)))
+        tx, ty, tz, bx, by, bz = warps.frame(nx, ny, nz)
+        ox, oy, oz = origins[v, 0], origins[v, 1], origins[v, 2]
+        for s in range(per):
+            u0, u1 = rng.scrambled_sobol2_seeded(p0 + s, s0, s1)
+            x, y, z = warps.square_to_cosine_hemisphere(u0, u1)
+            out_live[m] = a * per + s
+            out_org[m, 0] = ox
+            out_org[m, 1] = oy
+            out_org[m, 2] = oz
+            out_dir[m, 0] = x * tx + y * bx + z * nx
+            out_dir[m, 1] = x * ty + y * by + z * ny
+            out_dir[m, 2] = x * tz + y * bz + z * nz
+            m += 1
+    return m
 
 
 @njit(cache=True, nogil=True)
@@ -406,16 +436,49 @@ def bounce_directions(path_org, path_normal, alive, keys, vertex_of, index_of, d
 @njit(cache=True, nogil=True)
 def follow_hits(
     live, m, prim, org, dirs, scale, points, faces, path_org, path_normal, throughput, value, alive,
-    face_normals, face_albedo, dome, offset, continue_paths,
+    face_normals, face_albedo, dome, offset, continue_paths, on_plane, plane,
 ):  # fmt: skip
     """After tracing rays 0..m-1 of the live paths ``live`` (first hits ``prim``): an
     escaping path adds throughput x pi L_dome to ``value`` and ends; a hit moves the
     path to the hit point (the ray met with the face's plane in float64, offset along
     the face normal turned to face the ray), takes the face's albedo into the
-    throughput and ends where that is zero or ``continue_paths`` is False."""
+    throughput and ends where that is zero or ``continue_paths`` is False.
+
+    ``plane``: the ground plane's row (:data:`G_AXIS` ...; axis -1: none). A ray Embree
+    missed with ``on_plane[r]`` set (:func:`ground_clip`) met the plane: the path moves
+    onto it (offset up), faces up and takes the plane's albedo."""
+    axis = int(plane[G_AXIS])
+    height = plane[G_HEIGHT]
     for r in range(m):
         p = live[r]
         f = prim[r]
+        if f < 0 and axis >= 0 and on_plane[r] != 0:
+            if not continue_paths:
+                alive[p] = False
+                continue
+            ox = np.float64(org[r, 0]) * scale
+            oy = np.float64(org[r, 1]) * scale
+            oz = np.float64(org[r, 2]) * scale
+            dx, dy, dz = np.float64(dirs[r, 0]), np.float64(dirs[r, 1]), np.float64(dirs[r, 2])
+            o_up = ox if axis == 0 else (oy if axis == 1 else oz)
+            d_up = dx if axis == 0 else (dy if axis == 1 else dz)
+            t = max(o_up - height, 0.0) / -d_up
+            qx, qy, qz = ox + t * dx, oy + t * dy, oz + t * dz
+            e = plane[G_EPS] * (plane[G_MAGNITUDE] + max(abs(qx), abs(qy), abs(qz)))
+            path_org[p, 0] = qx
+            path_org[p, 1] = qy
+            path_org[p, 2] = qz
+            path_org[p, axis] = height + e
+            for k in range(3):
+                path_normal[p, k] = 1.0 if k == axis else 0.0
+            black = True
+            for k in range(3):
+                throughput[p, k] *= plane[G_ALBEDO + k]
+                if throughput[p, k] > 0.0:
+                    black = False
+            if black:
+                alive[p] = False
+            continue
         if f < 0:
             for k in range(3):
                 value[p, k] += throughput[p, k] * math.pi * dome[k]
@@ -466,6 +529,17 @@ def hit_samples(
     m = 0
     last = -1  # a vertex's paths are consecutive: its per-component keys are made once
     comp_keys = np.zeros(n_lights + 1, dtype=np.uint64)
+    # per component, once a call: sampled here (the dome with shadows and absent
+    # emitters are not), has a finite range to test, casts shadow rays
+    sampled = np.ones(n_lights + 1, dtype=np.bool_)
+    ranged = np.zeros(n_lights + 1, dtype=np.bool_)
+    shadows = np.ones(n_lights + 1, dtype=np.bool_)
+    for c in range(n_lights):
+        kind = kinds[c]
+        sampled[c] = not (kind == DOME and params[c, P_SHADOW] > 0.0)
+        ranged[c] = kind != DISTANT and kind != DOME and params[c, P_RANGE] < np.inf
+        shadows[c] = params[c, P_SHADOW] > 0.0
+    sampled[n_lights] = has_emitters
     for p in range(alive.shape[0]):
         if not alive[p]:
             continue
@@ -477,22 +551,16 @@ def hit_samples(
             for c in range(n_lights + 1):
                 comp_keys[c] = rng.hash2(key, np.uint64(c))
         for c in range(n_lights + 1):
-            if c < n_lights:
-                kind = kinds[c]
-                if kind == DOME and params[c, P_SHADOW] > 0.0:
-                    continue
-                if kind != DISTANT and kind != DOME:  # the range; the rest makes w = 0
-                    tx, ty, tz = params[c, P_POS] - ox, params[c, P_POS + 1] - oy, params[c, P_POS + 2] - oz
-                    if not tx * tx + ty * ty + tz * tz < params[c, P_RANGE] * params[c, P_RANGE]:
-                        continue
-                shadow = params[c, P_SHADOW] > 0.0
-            elif not has_emitters:
+            if not sampled[c]:
                 continue
-            else:
-                shadow = True
+            if ranged[c]:  # beyond the range: no sample (the other culling makes w = 0)
+                tx, ty, tz = params[c, P_POS] - ox, params[c, P_POS + 1] - oy, params[c, P_POS + 2] - oz
+                if not tx * tx + ty * ty + tz * tz < params[c, P_RANGE] * params[c, P_RANGE]:
+                    continue
+            shadow = shadows[c]
             u0, u1 = rng.random2(index_of[p], comp_keys[c])
             if c < n_lights:
-                wr, wg, wb, dx, dy, dz, dist = sample_light(kinds[c], params[c], ox, oy, oz, nx, ny, nz, u0, u1)
+                wr, wg, wb, dx, dy, dz, dist = sample_light(kinds[c], params, c, ox, oy, oz, nx, ny, nz, u0, u1)
             else:
                 wr, wg, wb, dx, dy, dz, dist = sample_emitter(
                     ox, oy, oz, nx, ny, nz, u0, u1, pos, faces, tris, cdf, emission, lum_total, shorten
@@ -545,6 +613,39 @@ def path_sums(value_direct, value_indirect, per, sums_direct, sums_indirect, squ
                 sums_direct[a, k] += d
                 sums_indirect[a, k] += i
                 squares[a, k] += (d + i) * (d + i)
+
+
+@njit(cache=True, nogil=True)
+def ground_clip(org, dirs, m, axis, height, far_cap, slack, far, on_plane):
+    """Path rays 0..m-1 against the ground plane ``x[axis] = height`` (Embree's frame):
+    where a ray going down meets it within ``far_cap`` (its origin clamped to the
+    plane: one offset below it starts on it), ``on_plane[r]`` is 1 and ``far[r]`` that
+    distance plus ``slack`` x (1 + distance), so Embree looks for nearer triangles only
+    but still finds a modelled floor lying in the plane (it keeps its albedo); else
+    ``far_cap``, 0."""
+    for r in range(m):
+        down = -np.float64(dirs[r, axis])
+        far[r] = far_cap
+        on_plane[r] = 0
+        if down > 0.0:
+            t = max(np.float64(org[r, axis]) - height, 0.0) / down
+            if t < far_cap:
+                far[r] = min(t + slack * (1.0 + t), far_cap)
+                on_plane[r] = 1
+
+
+@njit(cache=True, nogil=True)
+def ground_shadows(org, dirs, far, m, axis, height, on_plane):
+    """Shadow rays 0..m-1 (lengths ``far``, Embree's frame) that meet the ground plane
+    before their end: ``on_plane[r]`` 1, the ray is occluded, and its origin moves to
+    3 dir (outside the scene's box, going away: Embree rejects it at its root); else 0."""
+    for r in range(m):
+        down = -np.float64(dirs[r, axis])
+        on_plane[r] = 0
+        if down > 0.0 and max(np.float64(org[r, axis]) - height, 0.0) < np.float64(far[r]) * down:
+            on_plane[r] = 1
+            for k in range(3):
+                org[r, k] = np.float32(3.0) * dirs[r, k]
 
 
 @njit(cache=True, nogil=True)

@@ -236,39 +236,63 @@ def cell_corners(faces, n_vertices):
     return corner_start, corners
 
 
-@njit(cache=True, error_model="numpy", parallel=True)
-def permute_cells(positions, corner_start, corners, perm, inverse, start_out, corners_out,
-                  reach_out):
-    """The cells of :func:`cell_corners` renumbered: vertex ``perm[k]`` becomes k, with
-    each cell's reach ``reach_out[k]``, the largest distance from its vertex to a corner
-    of its quads (:func:`cell_terms`): a receiver whose tangent plane has the vertex
-    lower than ``-reach`` sees no part of the cell.
+@njit(cache=True, error_model="numpy")
+def renumbered_cells(faces, inverse):
+    """:func:`cell_corners` of the triangles with every vertex ``v`` renumbered
+    ``inverse[v]``, built without the table in the old numbering: vertex ``inverse[v]``'s
+    rows are ``v``'s rows of :func:`cell_corners` in the same order (face order), their
+    corners renumbered too. The disk method lays the cells out in tree order this way, so
+    that the cells a bucket's receivers evaluate, and their corners, lie close together
+    in memory.
 
-    ``start_out`` must hold the new row starts (the cumulated cell sizes in the new
-    order); row r of the cell of ``perm[k]`` is copied to row ``start_out[k] + r`` with
-    both corners mapped through ``inverse`` (``inverse[perm[k]] = k``). The disk method
-    lays the cells out in tree order this way, so that the cells a bucket's receivers
-    evaluate, and their corners, lie close together in memory.
+    Parameters
+    ----------
+    faces : (m, 3) int64
+    inverse : (n,) int32 or int64
+        A permutation of the vertices.
+
+    Returns
+    -------
+    corner_start : (n + 1,) int64
+    corners : (3 m, 2), the dtype of ``inverse``
+    """
+    n = inverse.shape[0]
+    m = faces.shape[0]
+    corner_start = np.zeros(n + 1, dtype=np.int64)
+    for f in range(m):
+        for k in range(3):
+            corner_start[inverse[faces[f, k]] + 1] += 1
+    for v in range(n):
+        corner_start[v + 1] += corner_start[v]
+    fill = corner_start[:-1].copy()
+    corners = np.empty((3 * m, 2), dtype=inverse.dtype)
+    for f in range(m):
+        for k in range(3):
+            v = inverse[faces[f, k]]
+            corners[fill[v], 0] = inverse[faces[f, (k + 1) % 3]]
+            corners[fill[v], 1] = inverse[faces[f, (k + 2) % 3]]
+            fill[v] += 1
+    return corner_start, corners
+
+
+@njit(cache=True, error_model="numpy", parallel=True)
+def cell_reach(positions, corner_start, corners, reach_out):
+    """Each cell's reach ``reach_out[j]``: the largest distance from vertex j to a corner
+    of its quads (:func:`cell_terms`); a receiver whose tangent plane has the vertex lower
+    than ``-reach`` sees no part of the cell.
 
     Parameters
     ----------
     positions : (n, 3) float64
     corner_start : (n + 1,) int64
-    corners : (c, 2) int64
-    perm, inverse : (n,) int64
-    start_out : (n + 1,) int64
-    corners_out : (c, 2) int64
+    corners : (c, 2) int32 or int64
     reach_out : (n,) float64
     """
-    for k in prange(perm.shape[0]):
-        v = perm[k]
-        lo = corner_start[v]
+    for v in prange(positions.shape[0]):
         reach = 0.0
-        for r in range(corner_start[v + 1] - lo):
-            b = corners[lo + r, 0]
-            c = corners[lo + r, 1]
-            corners_out[start_out[k] + r, 0] = inverse[b]
-            corners_out[start_out[k] + r, 1] = inverse[c]
+        for r in range(corner_start[v], corner_start[v + 1]):
+            b = corners[r, 0]
+            c = corners[r, 1]
             e1 = 0.0
             e2 = 0.0
             e3 = 0.0
@@ -280,7 +304,7 @@ def permute_cells(positions, corner_start, corners, perm, inverse, start_out, co
                 e3 += (d1 + d2) * (d1 + d2)
             # the quad's corners: j + e1 / 2, j + (e1 + e2) / 3, j + e2 / 2
             reach = max(reach, 0.5 * np.sqrt(e1), 0.5 * np.sqrt(e2), np.sqrt(e3) / 3.0)
-        reach_out[k] = reach
+        reach_out[v] = reach
 
 
 @njit(cache=True, error_model="numpy")

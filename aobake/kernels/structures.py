@@ -101,13 +101,13 @@ class Emitters(NamedTuple):
 
 
 class NearField(NamedTuple):
-    """Near-field cells renumbered to tree order (``polygon.permute_cells``): row k is the
-    emitter at tree position k, the other vertices follow."""
+    """Near-field cells renumbered to tree order (``polygon.renumbered_cells``): row k is
+    the emitter at tree position k, the other vertices follow."""
 
     positions: np.ndarray  #: (n, 3) float64 vertex positions
     weights: np.ndarray  #: (n,) float64 the cells' pass weights
     corner_start: np.ndarray  #: (n + 1,) int64
-    corners: np.ndarray  #: (c, 2) int64
+    corners: np.ndarray  #: (c, 2) int32 (int64 from 2^31 vertices on)
     reach: np.ndarray  #: (n,) float64 farthest corner from the vertex
     #: (n, 2, N_BINS) float64 each receiver's cell sums, cumulative by distance bin
     cache: np.ndarray

@@ -86,13 +86,16 @@ def run(name: str, surface, options=None, progress=None, *, vertices=None, groun
     return module.run(surface, opts, progress, vertices=vertices, **extra)
 
 
-def run_light(name: str, surface, shading, options=None, progress=None, *, indirect: bool = True, **changes):
+def run_light(
+    name: str, surface, shading, options=None, progress=None, *, indirect: bool = True, ground=None, **changes
+):
     """Irradiance of ``surface`` lit by ``shading`` (:class:`aobake.shading.Shading`) with
     method ``name`` (one of :data:`LIGHTING`): its ``LightResult`` (``direct``,
     ``indirect``, ``error`` (n, 3), ray counts, per-light statistics). ``indirect=False``:
-    direct light only, whatever the options' ``bounces``."""
+    direct light only, whatever the options' ``bounces``; ``ground``: a resolved
+    :class:`aobake.ground.Ground` that occludes and reflects (None: none)."""
     opts = make_options(name, options, **changes)
     if name not in LIGHTING:
         raise ValueError(f"--method {name} computes ambient occlusion only; light needs --method {LIGHTING[0]}")
     module = importlib.import_module(f"{__name__}.{name}")
-    return module.run_light(surface, shading, opts, progress, indirect=indirect)
+    return module.run_light(surface, shading, opts, progress, indirect=indirect, ground=ground)

@@ -8,6 +8,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -39,8 +40,8 @@ class DiskElements:
         Where each vertex receives: ``positions + NEAR_OFFSET_REL sqrt(A) n``, moved to
         the vertex's own side where another shell touches it
         (:func:`aobake.contacts.contact_points`).
-    corner_start, corners : int64
-        Triangles around each vertex (``aobake.kernels.polygon.cell_corners``).
+    faces : (m, 3) int64
+        The surface's triangles (not a copy).
     origin : (3,) float64
         Centre of the input's bounding box.
     scale : float
@@ -52,8 +53,7 @@ class DiskElements:
     areas: FloatArray
     emitter_index: IndexArray
     points: FloatArray
-    corner_start: IndexArray
-    corners: IndexArray
+    faces: IndexArray
     origin: FloatArray
     scale: float
 
@@ -64,6 +64,22 @@ class DiskElements:
     @property
     def n_emitters(self) -> int:
         return int(self.emitter_index.shape[0])
+
+    @cached_property
+    def _cells(self) -> tuple[IndexArray, IndexArray]:
+        return _poly.cell_corners(self.faces, self.n_vertices)
+
+    @property
+    def corner_start(self) -> IndexArray:
+        """(n + 1,) int64: vertex j's triangles are rows ``corner_start[j]:corner_start[j + 1]``
+        of :attr:`corners` (``aobake.kernels.polygon.cell_corners``; built on first use: the
+        tree pass builds its own table, in tree order)."""
+        return self._cells[0]
+
+    @property
+    def corners(self) -> IndexArray:
+        """(3 m, 2) int64: the other two corners of each triangle around each vertex."""
+        return self._cells[1]
 
 
 def build_elements(surface: Surface) -> DiskElements:
@@ -99,7 +115,8 @@ def _build_elements(surface: Surface) -> DiskElements:
     else:
         origin, extent = np.zeros(3), 0.0
     scale = extent if extent > 0.0 and math.isfinite(extent) else 1.0
-    local = np.ascontiguousarray((positions - origin) / scale)
+    local = positions - origin  # a new array: divided in place
+    local /= scale
     areas = np.zeros(n)
     _poly.vertex_areas(local, faces, areas)
     casts = (areas > 0.0) & normals.any(axis=1)
@@ -110,15 +127,13 @@ def _build_elements(surface: Surface) -> DiskElements:
     normalised = dataclasses.replace(surface, positions=local)
     points, _ = contact_points(normalised, local, np.zeros(3), NEAR_OFFSET_REL * np.sqrt(areas))
     points = np.ascontiguousarray(points)
-    corner_start, corners = _poly.cell_corners(faces, n)
     return DiskElements(
         local,
         normals,
         areas,
         np.flatnonzero(casts).astype(np.int64),
         points,
-        corner_start,
-        corners,
+        faces,
         origin,
         scale,
     )

@@ -107,17 +107,10 @@ class _Pass:
         self.perm, self.cells = _cells_in_tree_order(elements, order)
         self.rows = np.zeros((order.shape[0], _h.EMITTER_COLS), dtype=np.float32)
         _h.emitter_rows(elements.positions, elements.normals, elements.areas, order, self.rows)
-        self.weights = np.ones((order.shape[0], _k.N_LEVELS), dtype=np.float32)
         self.occluders = np.zeros((order.shape[0], 3), dtype=np.float32)
         coherence = node_coherence(tree, elements.normals, elements.areas)
         self.nodes = pack_nodes(tree, theta=theta, near=near, coherence=coherence)
-        self.moments = np.zeros((tree.n_nodes, _k.N_LEVELS, _h.MOMENT_COLS), dtype=np.float32)
-        self.tree_args = _s.TreeArrays(
-            skip=tree.skip, start=tree.start, stop=tree.stop, nodes=self.nodes, moments=self.moments
-        )
-        self.emitters = _s.Emitters(
-            rows=self.rows, index=order, weights=self.weights, occluders=self.occluders
-        )
+        self._levels(1)
         recv_order, bucket_start = receiver_buckets(elements, tree)
         bounds = np.zeros((bucket_start.shape[0] - 1, _tw.BOUND_COLS))
         _tw.bucket_bounds(elements.points, elements.normals, self.receivers.inner, recv_order,
@@ -129,9 +122,23 @@ class _Pass:
             order=recv_order,
             start=bucket_start,
             bounds=bounds,
-            near_buf=np.empty((slots, _tw.NEAR_ROWS, k), dtype=np.float32),
-            near_idx=np.empty((slots, 2, k), dtype=np.int64),
-            far_buf=np.empty((slots, _tw.FAR_ROWS, m), dtype=np.float32),
+            near_buf=scratch((slots, _tw.NEAR_ROWS, k), np.float32),
+            near_idx=scratch((slots, 2, k), np.int64),
+            far_buf=scratch((slots, _tw.FAR_ROWS, m), np.float32),
+        )
+
+    def _levels(self, levels: int) -> None:
+        """Per-emitter weights and per-node moments for ``levels`` weight levels: 1 while
+        every pass so far had equal levels (the kernels then read level 0 only), else
+        N_LEVELS (a seventh of the memory in a first pass)."""
+        tree, k = self.tree, self.tree.order.shape[0]
+        self.weights = np.ones((k, levels), dtype=np.float32)
+        self.moments = np.zeros((tree.n_nodes, levels, _h.MOMENT_COLS), dtype=np.float32)
+        self.tree_args = _s.TreeArrays(
+            skip=tree.skip, start=tree.start, stop=tree.stop, nodes=self.nodes, moments=self.moments
+        )
+        self.emitters = _s.Emitters(
+            rows=self.rows, index=tree.order, weights=self.weights, occluders=self.occluders
         )
 
     def sums(
@@ -162,18 +169,19 @@ class _Pass:
         """
         e = self.elements
         n = e.n_vertices
-        weights = np.asarray(weights, dtype=np.float64)
-        if weights.ndim == 1:
-            weights = np.repeat(weights[:, None], _k.N_LEVELS, axis=1)
-        weights = np.ascontiguousarray(weights)
-        cell_weights = np.ascontiguousarray(weights[:, 0] if cell_weights is None else cell_weights)
-        leveled = bool(np.any(weights != weights[:, :1]))
+        weights = np.ascontiguousarray(weights, dtype=np.float64)
+        # (n,) weights are one level: not spread to N_LEVELS unless the exact sum needs them
+        leveled = weights.ndim == 2 and bool(np.any(weights != weights[:, :1]))
+        level0 = weights if weights.ndim == 1 else weights[:, 0]
+        cell_weights = np.ascontiguousarray(level0 if cell_weights is None else cell_weights)
         options = self.options._replace(binned=bool(binned), leveled=leveled)
         occluders = np.ascontiguousarray(e.positions if occluders is None else occluders)
         out = np.zeros((n, 2, _k.N_BINS))
         first = np.zeros((n, 4))
         fill = self.no_fill if fill is None else fill
         if self.tree is None:
+            if weights.ndim == 1:
+                weights = np.repeat(weights[:, None], _k.N_LEVELS, axis=1)
             disks = _s.Disks(e.positions, e.normals, e.areas, weights, occluders)
             cells = _s.Cells(e.corner_start, e.corners, cell_weights)
             everyone = np.arange(n, dtype=np.int64)
@@ -187,9 +195,11 @@ class _Pass:
             return out, first
         # only what this pass reads: level 0 unless leveled, the occluders when gated
         if leveled:
+            if self.weights.shape[1] != _k.N_LEVELS:
+                self._levels(_k.N_LEVELS)
             self.weights[:] = weights[self.tree.order]
         else:
-            self.weights[:, 0] = weights[self.tree.order, 0]
+            self.weights[:, 0] = level0[self.tree.order]
         if leveled and self.options.gate > 0.0:
             self.occluders[:] = occluders[self.tree.order]
         _h.refit_nodes(
@@ -239,6 +249,19 @@ class _Pass:
         return out, first
 
 
+def scratch(shape: tuple, dtype) -> np.ndarray:
+    """An uninitialised C-contiguous array on an anonymous mapping of its own: its pages
+    become resident only where written. The pass's per-thread lists are rows k (or m)
+    entries apart, each written only at its start; numpy asks the kernel for 2 MiB pages
+    on large arrays, which made them ~90 MiB resident whatever the mesh's size."""
+    import mmap
+
+    dtype = np.dtype(dtype)
+    count = math.prod(shape)
+    buffer = mmap.mmap(-1, max(count * dtype.itemsize, 1))
+    return np.frombuffer(buffer, dtype=dtype, count=count).reshape(shape)
+
+
 def _no_fill(n: int) -> _s.Fill:
     """The kernels' ``fill`` argument when no receiver keeps or reads its bins."""
     return _s.Fill(np.zeros((0, 2, 2 * _k.SECTORS)), np.full(n, -1, dtype=np.int64), _k.FILL_NONE)
@@ -261,22 +284,23 @@ def _non_emitters(n: int, order: IndexArray) -> IndexArray:
 
 
 def _cells_in_tree_order(elements: DiskElements, order: IndexArray):
-    """``(perm, (positions, corner_start, corners))``: the vertices renumbered so that the
-    emitters come first in tree order ``order`` (then the others), with their positions
-    and cells (``polygon.permute_cells``). A receiver's near-field cells are its
+    """``(perm, (positions, corner_start, corners, reach))``: the vertices renumbered so
+    that the emitters come first in tree order ``order`` (then the others), with their
+    positions and cells (``polygon.renumbered_cells``, corners int32 below 2^31 vertices,
+    and ``polygon.cell_reach``). A receiver's near-field cells are its
     neighbours' and their corners are near them: in tree order they are near in memory
     too, whatever the input's vertex order (a scattered order made the cells slow)."""
     n = elements.n_vertices
     perm = np.concatenate([order, _non_emitters(n, order)]).astype(np.int64)
-    inverse = np.empty(n, dtype=np.int64)
-    inverse[perm] = np.arange(n, dtype=np.int64)
-    start = np.zeros(n + 1, dtype=np.int64)
-    np.cumsum(np.diff(elements.corner_start)[perm], out=start[1:])
-    corners = np.empty_like(elements.corners)
+    index = np.int32 if n < 2**31 else np.int64  # the corners' dtype: half the table
+    inverse = np.empty(n, dtype=index)
+    inverse[perm] = np.arange(n, dtype=index)
+    start, corners = _poly.renumbered_cells(elements.faces, inverse)
+    del inverse
+    positions = np.ascontiguousarray(elements.positions[perm])
     reach = np.empty(n)
-    _poly.permute_cells(elements.positions, elements.corner_start, elements.corners, perm,
-                        inverse, start, corners, reach)
-    return perm, (np.ascontiguousarray(elements.positions[perm]), start, corners, reach)
+    _poly.cell_reach(positions, start, corners, reach)
+    return perm, (positions, start, corners, reach)
 
 
 def pass_representatives(elements: DiskElements, tree: ClusterTree) -> IndexArray:
@@ -308,7 +332,7 @@ def receiver_buckets(elements: DiskElements, tree: ClusterTree) -> tuple[IndexAr
     order = [tree.order]
     rest = _non_emitters(elements.n_vertices, tree.order)
     if rest.size:
-        perm, start, _, skip = _h.build_tree(tree_keys(elements.points[rest]), tree.leaf_size)
+        perm, start, _, skip = _h.build_tree(tree_keys(elements.points, rest), tree.leaf_size)
         rest_leaves = np.flatnonzero(skip == np.arange(1, skip.shape[0] + 1))
         starts.append(start[rest_leaves] + tree.order.shape[0])
         order.append(rest[perm])
@@ -473,8 +497,8 @@ def _all_passes(job, occlusion, passes, sides, damping, fills, progress, settle=
     the kernels' ``fill`` for pass 1 and for the later passes (:func:`_fills`);
     ``settle``: what adds the ground plane to a pass's (n, 2) totals (None: no plane)."""
     n = occlusion.shape[1]
-    weights = np.ones((n, _k.N_LEVELS))
     cell_weights = np.ones(n)
+    weights = cell_weights  # pass 1: every level 1
     occluders = None
     for k in range(passes):
         binned = k + 1 < passes  # the next pass needs occlusion by distance
@@ -507,7 +531,7 @@ def _shared_passes(job, occlusion, rep_of, evaluated, passes, sides, damping, fi
     S_k(rep) / S_1(rep) would scale them: measured worse at contacts)."""
     n = occlusion.shape[1]
     ones = np.ones(n)
-    first_sums, first = job.sums(np.ones((n, _k.N_LEVELS)), progress, ones, True, 0, fill=fills[0])
+    first_sums, first = job.sums(ones, progress, ones, True, 0, fill=fills[0])
     _check_sums(first_sums, "unsaturated occlusion sum", lower=0.0, upper=np.inf)
     base = first_sums[:, :, -1]
     # the plane joins every pass's totals as pass 1 settled it (what later passes drop is
@@ -547,4 +571,8 @@ def occluder_centroids(elements: DiskElements, first: FloatArray) -> FloatArray:
 
 
 def _check_sums(values, what: str, *, lower: float, upper: float) -> None:
+    # the extremes first: no temporaries the size of the sums (the bake's memory peak)
+    low, high = values.min(initial=lower), values.max(initial=lower)
+    if math.isfinite(low) and math.isfinite(high) and low >= lower and high <= upper:
+        return
     check_result(values, what, lower=lower, upper=upper, method="bunnell")

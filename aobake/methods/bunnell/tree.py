@@ -64,21 +64,21 @@ class ClusterTree:
         return np.flatnonzero(self.skip == np.arange(1, self.n_nodes + 1))
 
 
-def tree_keys(positions: FloatArray) -> IndexArray:
-    """Integer keys for the tree build: positions quantised to ``TREE_KEY_STEPS`` steps of
-    the largest bounding-box extent (the same step on every axis, so the longest axis is
-    still the longest). Returns (k, 3) int64; all zeros when every point coincides.
+def tree_keys(positions: FloatArray, rows: IndexArray | None = None) -> IndexArray:
+    """Integer keys for the tree build: positions (the ``rows`` of ``positions``, default
+    all) quantised to ``TREE_KEY_STEPS`` steps of the largest bounding-box extent (the same
+    step on every axis, so the longest axis is still the longest). Returns (k, 3) int64;
+    all zeros when every point coincides.
     """
-    positions = np.asarray(positions, dtype=np.float64)
-    if positions.shape[0] == 0:
+    positions = np.ascontiguousarray(positions, dtype=np.float64)
+    if rows is None:
+        rows = np.arange(positions.shape[0], dtype=np.int64)
+    rows = np.ascontiguousarray(rows, dtype=np.int64)
+    if rows.shape[0] == 0:
         return np.zeros((0, 3), dtype=np.int64)
-    lo = positions.min(axis=0)
-    extent = float((positions.max(axis=0) - lo).max())
-    if not extent > 0.0:
-        return np.zeros(positions.shape, dtype=np.int64)
-    return np.ascontiguousarray(
-        np.floor((positions - lo) * (TREE_KEY_STEPS / extent) + 0.5), dtype=np.int64
-    )
+    out = np.empty((rows.shape[0], 3), dtype=np.int64)
+    _k.quantised_keys(positions, rows, float(TREE_KEY_STEPS), out)
+    return out
 
 
 def build_tree(
@@ -108,7 +108,7 @@ def build_tree(
     index.
     """
     emitters = np.ascontiguousarray(emitters, dtype=np.int64)
-    perm, start, stop, skip = _k.build_tree(tree_keys(positions[emitters]), int(leaf_size))
+    perm, start, stop, skip = _k.build_tree(tree_keys(positions, emitters), int(leaf_size))
     order = np.ascontiguousarray(emitters[perm])
     geometry = node_geometry(positions, areas, order, start, stop)
     return ClusterTree(order, start, stop, skip, geometry, int(leaf_size))
@@ -143,16 +143,18 @@ def node_geometry(positions, areas, order, start, stop) -> FloatArray:
 def node_coherence(tree: ClusterTree, normals: FloatArray, areas: FloatArray) -> FloatArray:
     """(m,) float64 in [0, 1]: per node ``|sum A m| / sum A`` over its disks (unit normals
     m): 1 for a flat patch, near 0 for a node whose normals cancel (two facing plates,
-    both sides of a ball). Prefix sums in tree order: O(k + m)."""
-    order = tree.order
-    areas = np.asarray(areas, dtype=np.float64)[order]
-    am = np.asarray(normals, dtype=np.float64)[order] * areas[:, None]
-    cum = np.zeros((order.shape[0] + 1, 4))
-    np.cumsum(np.column_stack([am, areas]), axis=0, out=cum[1:])
-    sums = cum[tree.stop] - cum[tree.start]
+    both sides of a ball). Prefix sums in tree order: O(k + m) (``_k.node_coherence``)."""
+    out = np.empty(tree.n_nodes)
     with np.errstate(invalid="ignore", divide="ignore"):
-        c = np.linalg.norm(sums[:, :3], axis=1) / sums[:, 3]
-    return np.clip(np.nan_to_num(c, nan=1.0), 0.0, 1.0)
+        _k.node_coherence(
+            np.ascontiguousarray(normals, dtype=np.float64),
+            np.ascontiguousarray(areas, dtype=np.float64),
+            tree.order,
+            tree.start,
+            tree.stop,
+            out,
+        )
+    return out
 
 
 def pack_nodes(

@@ -26,7 +26,7 @@ from ...kernels import topology as _topo
 from ...mesh import Surface
 from ...options import build
 from ...progress import NullProgress, Progress
-from ...tracing import Tracer, trace_chunks
+from ...tracing import trace_chunks, tracer_for
 from .. import MethodResult
 from .options import EmbreeOptions
 
@@ -211,7 +211,7 @@ def estimate(
     lo, hi = (0, n) if vertices is None else (int(vertices[0]), int(vertices[1]))
     if not 0 <= lo <= hi <= n:
         raise ValueError(f"vertex range ({lo}, {hi}) is not within the mesh's {n} vertices")
-    tracer = Tracer(surface.positions, surface.faces, deferred=True)
+    tracer = tracer_for(surface.positions, surface.faces, deferred=True)
     edges = _topo.longest_edges(surface.positions, surface.faces)
     offsets = ray_offsets(surface, tracer.magnitude, options.bias, edges)
     if contact_fix:

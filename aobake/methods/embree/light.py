@@ -27,6 +27,8 @@ from ...constants import (
 )
 from ...contacts import contact_origins, ray_offsets
 from ...errors import NumericalError
+from ...ground import ALBEDO as GROUND_ALBEDO
+from ...ground import Ground
 from ...kernels import lights as _kl
 from ...kernels import rays as _k
 from ...kernels import topology as _topo
@@ -34,7 +36,7 @@ from ...mesh import Surface
 from ...options import build
 from ...progress import NullProgress, Progress
 from ...shading import AREA_KINDS, Light, Shading
-from ...tracing import Tracer, trace_chunks
+from ...tracing import trace_chunks, tracer_for
 from .options import LightOptions
 
 
@@ -147,13 +149,19 @@ def _rounds(n: int, adaptive: bool) -> list[int]:
 
 
 def run_light(
-    surface: Surface, shading: Shading, options, progress: Progress | None = None, *, indirect: bool = True
+    surface: Surface,
+    shading: Shading,
+    options,
+    progress: Progress | None = None,
+    *,
+    indirect: bool = True,
+    ground: Ground | None = None,
 ) -> LightResult:
     """The method interface (:func:`aobake.methods.run_light`): :func:`irradiance` with
     the light fields of ``options`` (:class:`~aobake.methods.embree.EmbreeOptions`);
     ``indirect=False`` computes direct light only."""
     changes = {} if indirect else {"bounces": 0}
-    return irradiance(surface, shading, options.light(**changes), progress=progress)
+    return irradiance(surface, shading, options.light(**changes), progress=progress, ground=ground)
 
 
 def irradiance(
@@ -163,6 +171,7 @@ def irradiance(
     *,
     progress: Progress | None = None,
     chunk_rays: int = CHUNK_RAYS,
+    ground: Ground | None = None,
     **changes,
 ) -> LightResult:
     """Per-vertex irradiance (direct and indirect, RGB) of ``surface`` lit by ``shading``.
@@ -179,6 +188,10 @@ def irradiance(
     progress : Progress, optional
     chunk_rays : int
         About this many rays per work item (memory; no effect on the result).
+    ground : aobake.ground.Ground, optional
+        An infinite plane under the mesh (:mod:`aobake.ground`): it occludes shadow and
+        path rays (one test per ray) and reflects the paths that meet it with
+        :data:`aobake.ground.ALBEDO`; nothing receives on it.
 
     Notes
     -----
@@ -204,7 +217,7 @@ def irradiance(
     n_lights = len(lights)
     n_comp = n_lights + 1
 
-    tracer = Tracer(surface.positions, surface.faces)
+    tracer = tracer_for(surface.positions, surface.faces)
     edges = _topo.longest_edges(surface.positions, surface.faces)
     offsets = ray_offsets(surface, tracer.magnitude, options.bias, edges)
     origins, contacts = contact_origins(surface, tracer, offsets, edges)
@@ -239,6 +252,16 @@ def irradiance(
         tris = np.zeros(1, dtype=np.int64)
     lum_total = float((0.5 * length[tris] * emission[tris].sum(axis=1)).sum()) if has_emitters else 1.0
     albedo = np.ascontiguousarray(shading.face_albedo, dtype=np.float64)
+    plane = np.full(_kl.G_SIZE, -1.0)  # the ground plane's row; axis -1: none
+    g_axis, g_height = -1, 0.0
+    if ground is not None:
+        g_axis = int(ground.axis)
+        plane[_kl.G_HEIGHT] = float(ground.height) - float(tracer.center[g_axis])
+        plane[_kl.G_AXIS] = g_axis
+        plane[_kl.G_EPS] = RAY_OFFSET_ULPS * EPS32
+        plane[_kl.G_MAGNITUDE] = tracer.magnitude
+        plane[_kl.G_ALBEDO : _kl.G_ALBEDO + 3] = GROUND_ALBEDO
+        g_height = plane[_kl.G_HEIGHT] / scale  # in Embree's frame
 
     # samples per component; the dome with shadows comes from the paths
     dome = np.zeros(3)
@@ -256,14 +279,15 @@ def irradiance(
     sampled[n_lights] = has_emitters
     lit = bool(exact.any() or sampled.any() or np.any(dome > 0))
     bounces = options.bounces if shading.reflects and lit else 0
-    use_paths = bool(np.any(dome > 0)) or bounces > 0
+    sees_dome = bool(np.any(dome > 0))
+    use_paths = sees_dome or bounces > 0
 
     adaptive = options.tolerance is not None
     ends = _rounds(options.n_samples, adaptive)
     path_ends = [max(1, -(-options.n_indirect * j // options.n_samples)) for j in ends]
     per_vertex = int(sampled.sum()) * options.n_samples + int(exact.sum())
     if use_paths:
-        per_vertex += options.n_indirect * (1 + bounces * (1 + n_comp))
+        per_vertex += options.n_indirect * (bounces * (1 + n_comp) + (1 if sees_dome else 0))
     per_chunk = max(1, min(chunk_rays // max(per_vertex, 1), -(-n // (4 * threads))))
 
     sums = np.zeros((n, n_comp, 3))
@@ -275,6 +299,14 @@ def irradiance(
     counts = {"bounce": 0}
     lock = threading.Lock()
     inv_scale = 1.0 / scale
+
+    def _occluded(org, dirs, far, m, on_plane):
+        """Shadow rays 0..m-1: -1 where unoccluded by the mesh and the ground plane."""
+        if ground is None:
+            return tracer.occluded_within(org[:m], dirs[:m], far[:m])
+        _kl.ground_shadows(org, dirs, far, m, g_axis, g_height, on_plane)
+        ids = tracer.occluded_within(org[:m], dirs[:m], far[:m])
+        return np.where(on_plane[:m] != 0, 0, ids)
 
     def direct(vidx, j_lo, j_hi):
         # Whole vertices in blocks of ~BLOCK_RAYS rays through buffers made once (as paths).
@@ -289,6 +321,7 @@ def irradiance(
         w = np.empty((k, 3))
         row = np.empty(k, dtype=np.int64)
         comp = np.empty(k, dtype=np.int64)
+        on_plane = np.empty(k, dtype=np.uint8)
         local = np.zeros((vidx.size, n_comp, 3))
         local_sq = np.zeros((vidx.size, n_comp, 3))
         cast = np.zeros(n_comp, dtype=np.int64)
@@ -300,7 +333,7 @@ def irradiance(
                 org, dirs, far, w, row, comp,
             )  # fmt: skip
             if m:
-                ids = tracer.occluded_within(org[:m], dirs[:m], far[:m])
+                ids = _occluded(org, dirs, far, m, on_plane)
                 _kl.add_samples(ids, w, row, comp, m, here, here_sq)
                 cast += np.bincount(comp[:m], minlength=n_comp)
         sums[vidx] += local
@@ -327,12 +360,14 @@ def irradiance(
         live = np.empty(size, dtype=np.int64)
         org = np.empty((size, 3), dtype=np.float32)
         dirs = np.empty((size, 3), dtype=np.float32)
+        far = np.empty(size, dtype=np.float32)
         k = size * n_comp
         s_org = np.empty((k, 3), dtype=np.float32)
         s_dir = np.empty((k, 3), dtype=np.float32)
         s_far = np.empty(k, dtype=np.float32)
         s_w = np.empty((k, 3))
         s_row = np.empty(k, dtype=np.int64)
+        on_plane = np.zeros(max(k, size), dtype=np.uint8)
         sd = np.zeros((vidx.size, 3))
         si = np.zeros((vidx.size, 3))
         sq = np.zeros((vidx.size, 3))
@@ -340,10 +375,10 @@ def irradiance(
         for b in range(0, vidx.size, block):
             sub = vidx[b : b + block]
             count = sub.size * per
-            _kl.start_paths(sub, per, origins, normals, scale, vertex_of, path_org, path_normal, alive, throughput, value_d, value_i)
+            m = _kl.first_rays(sub, per, p0, origins, normals, keys, vertex_of, alive, throughput, value_d, value_i, live, org, dirs)
             rays += _trace_paths(
-                count, vertex_of, index_of, path_org, path_normal, alive, throughput, value_d, value_i,
-                live, org, dirs, s_org, s_dir, s_far, s_w, s_row,
+                count, m, vertex_of, index_of, path_org, path_normal, alive, throughput, value_d, value_i,
+                live, org, dirs, far, s_org, s_dir, s_far, s_w, s_row, on_plane,
             )  # fmt: skip
             _kl.path_sums(value_d, value_i, per, sd[b : b + sub.size], si[b : b + sub.size], sq[b : b + sub.size])
         path_d[vidx] += sd
@@ -354,22 +389,35 @@ def irradiance(
         return rays
 
     def _trace_paths(
-        count, vertex_of, index_of, path_org, path_normal, alive, throughput, value_d, value_i,
-        live, org, dirs, s_org, s_dir, s_far, s_w, s_row,
+        count, m, vertex_of, index_of, path_org, path_normal, alive, throughput, value_d, value_i,
+        live, org, dirs, far, s_org, s_dir, s_far, s_w, s_row, on_plane,
     ):  # fmt: skip
-        """Paths 0..count-1 of the buffers from their vertices to their end; the rays cast."""
+        """Paths 0..count-1 of the buffers, their m first rays written, to their end; the
+        rays cast."""
         rays = 0
         alive = alive[:count]
         for depth in range(bounces + 1):
-            m = _kl.bounce_directions(path_org, path_normal, alive, keys, vertex_of, index_of, depth, inv_scale, live, org, dirs)
+            if depth == bounces and not sees_dome:
+                break  # the last ray only looks for the dome: without one it adds nothing
+            if depth > 0:
+                m = _kl.bounce_directions(path_org, path_normal, alive, keys, vertex_of, index_of, depth, inv_scale, live, org, dirs)
             if m == 0:
                 break
-            prim = tracer.first_hits(org[:m], dirs[:m], options.max_distance)
+            if ground is not None:  # Embree looks no farther than the plane
+                _kl.ground_clip(org, dirs, m, g_axis, g_height, far_cap, RAY_OFFSET_ULPS * EPS32, far, on_plane)
+                if depth == bounces:  # escapes alone matter: Embree's cheaper any-hit query
+                    prim = tracer.occluded_within(org[:m], dirs[:m], far[:m])
+                else:
+                    prim = tracer.first_hits_within(org[:m], dirs[:m], far[:m])
+            elif depth == bounces:
+                prim = tracer.occluded(org[:m], dirs[:m], options.max_distance)
+            else:
+                prim = tracer.first_hits(org[:m], dirs[:m], options.max_distance)
             rays += m
             _kl.follow_hits(
                 live, m, prim, org, dirs, scale, points, faces, path_org, path_normal, throughput,
                 value_d if depth == 0 else value_i, alive, face_normals, albedo, dome, face_offsets,
-                depth < bounces,
+                depth < bounces, on_plane, plane,
             )  # fmt: skip
             if depth == bounces:
                 break
@@ -379,7 +427,7 @@ def irradiance(
                 inv_scale, far_cap, value_i, s_org, s_dir, s_far, s_w, s_row,
             )  # fmt: skip
             if m:
-                ids = tracer.occluded_within(s_org[:m], s_dir[:m], s_far[:m])
+                ids = _occluded(s_org, s_dir, s_far, m, on_plane)
                 _kl.add_path_samples(ids, s_w, s_row, m, value_i)
             rays += m
         return rays
