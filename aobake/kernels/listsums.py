@@ -101,12 +101,19 @@ def sum_near(near, n_near, at, add, acc, how):
     coincident); a receiver moved aside at a contact has its own disk removed with the
     near-field candidates."""
     if at.measure == MEASURE_COSINE and at.has_normal:
-        if not at.leveled:
-            return sum_list(near, n_near, at, flat_cosine_term, add, acc, how)
-        if at.gate > ZERO32:
-            return sum_list(near, n_near, at, gated_cosine_term, add, acc, how)
-        return sum_list(near, n_near, at, leveled_cosine_term, add, acc, how)
+        return sum_near_cosine(near, n_near, at, add, acc, how)
     return sum_list(near, n_near, at, disk_term, add, acc, how)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def sum_near_cosine(near, n_near, at, add, acc, how):
+    """:func:`sum_near` for a receiver with a normal, cosine measure (no loop for the
+    other cases: :func:`direction_sums` compiles only these)."""
+    if not at.leveled:
+        return sum_list(near, n_near, at, flat_cosine_term, add, acc, how)
+    if at.gate > ZERO32:
+        return sum_list(near, n_near, at, gated_cosine_term, add, acc, how)
+    return sum_list(near, n_near, at, leveled_cosine_term, add, acc, how)
 
 
 # ---------------------------------------------------------------------------------------
@@ -208,7 +215,7 @@ def direction_sums(near, n_near, far, n_far, px, py, pz, nx, ny, nz, frame, max_
     z = ZERO32
     sf = (z, z, z, z, z, z, z, z, z, z, z, z, z, z, z, z)
     acc = (sf, sf, z, z)  # wide terms (bunnell.is_wide) in the last two: not binned
-    acc = sum_near(near, n_near, at, add_directed, acc, (S_A, frame, nx, ny, nz))
+    acc = sum_near_cosine(near, n_near, at, add_directed, acc, (S_A, frame, nx, ny, nz))
     sf, sb, wf, wb = sum_far(far, n_far, at, add_directed, acc, (F_WA, frame, nx, ny, nz))
     for k in range(2 * SECTORS):
         dirs[0, k] = sf[k]
