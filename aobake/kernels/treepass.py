@@ -30,12 +30,13 @@ from .bunnell import (
 )
 from .listsums import (
     binned_sums,
-    binned_sums_apart,
+    binned_sums_flat,
     direction_sums,
+    direction_sums_flat,
     far_sums,
-    far_sums_apart,
+    far_sums_flat,
     near_disk_sums,
-    near_disk_sums_apart,
+    near_disk_sums_flat,
     site,
 )
 from .listterms import disk_term
@@ -131,10 +132,10 @@ def thin_pass(tree, emitters, receivers, near_field, buckets, span, options, out
 @njit(cache=True, fastmath=FASTMATH, error_model="numpy")
 def thread_share(w, tree, emitters, receivers, near_field, buckets, span, options, out, first,
                  fill):
-    """Thread ``w``'s share of :func:`hierarchy_pass` (:func:`_share`), the list sums
-    compiled apart."""
+    """Thread ``w``'s share of :func:`hierarchy_pass` (:func:`_share`) in a pass without
+    levels, the list sums compiled apart (``listsums.*_flat``)."""
     _share(w, tree, emitters, receivers, near_field, buckets, span, options, out, first, fill,
-           far_sums_apart, near_disk_sums_apart, binned_sums_apart)
+           far_sums_flat, near_disk_sums_flat, binned_sums_flat, direction_sums_flat)
 
 
 @njit(cache=True, fastmath=FASTMATH, error_model="numpy", parallel=True)
@@ -143,17 +144,17 @@ def hierarchy_pass_inlined(tree, emitters, receivers, near_field, buckets, span,
     """:func:`hierarchy_pass` with the list sums inlined (any pass, any measure)."""
     for w in prange(span.threads):
         _share(w, tree, emitters, receivers, near_field, buckets, span, options, out, first, fill,
-               far_sums, near_disk_sums, binned_sums)
+               far_sums, near_disk_sums, binned_sums, direction_sums)
 
 
 @njit(cache=True, error_model="numpy", inline="always")
 def _share(w, tree, emitters, receivers, near_field, buckets, span, options, out, first, fill,
-           far_fn, near_fn, binned_fn):
+           far_fn, near_fn, binned_fn, dir_fn):
     """Thread ``w``'s share of :func:`hierarchy_pass`: every ``span.threads``-th block of
     SCHEDULE_BLOCK buckets, with scratch row ``w`` of ``buckets``; the list sums
-    ``far_fn``, ``near_fn``, ``binned_fn`` (:func:`~.listsums.far_sums`,
-    ``near_disk_sums``, ``binned_sums`` or their ``*_apart`` twins) are compile-time
-    arguments."""
+    ``far_fn``, ``near_fn``, ``binned_fn``, ``dir_fn`` (:func:`~.listsums.far_sums`,
+    ``near_disk_sums``, ``binned_sums``, ``direction_sums``, or their ``*_flat`` twins
+    for a pass without levels, compiled apart) are compile-time arguments."""
     positions, cell_weights, reach = near_field.positions, near_field.weights, near_field.reach
     corner_start, corners = near_field.corner_start, near_field.corners
     cache, cache_mode = near_field.cache, near_field.cache_mode
@@ -220,7 +221,7 @@ def _share(w, tree, emitters, receivers, near_field, buckets, span, options, out
             # had to bin (the bins then give the totals): the same result either way.
             binning = can_bin and binned_before
             if binning:
-                direction_sums(nb, n_near, fb, n_far, px32, py32, pz32, nx32, ny32, nz32, frame,
+                dir_fn(nb, n_near, fb, n_far, px32, py32, pz32, nx32, ny32, nz32, frame,
                                max_d2, np.float32(min_d2), wr2, leveled, gate_, dirs)
                 if not binned_i:
                     acc[0, last] = dirs[0].sum()  # the bins and the wide terms
@@ -236,7 +237,7 @@ def _share(w, tree, emitters, receivers, near_field, buckets, span, options, out
             keeps = row >= 0 and fill_mode != FILL_KEEP_IF  # FILL_KEEP_IF keeps, never forces
             if can_bin and not binning and (max(acc[0, last], acc[1, last]) > cap or keeps):
                 binning = True
-                direction_sums(nb, n_near, fb, n_far, px32, py32, pz32, nx32, ny32, nz32, frame,
+                dir_fn(nb, n_near, fb, n_far, px32, py32, pz32, nx32, ny32, nz32, frame,
                                max_d2, np.float32(min_d2), wr2, leveled, gate_, dirs)
             if can_bin:
                 binned_before = binning
