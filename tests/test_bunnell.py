@@ -126,7 +126,7 @@ def test_each_kernel_compiled_once():
     B.variant_ao(touching_spheres(), measure="uniform", max_distance=0.5)
     for kernel in (
         K.brute_force_pass,
-        KT.hierarchy_pass_apart,
+        KT.thin_pass,
         KT.hierarchy_pass_inlined,
         KTW.bucket_bounds,
         KH.build_tree,

@@ -17,12 +17,13 @@ BENCH = Path(__file__).resolve().parents[1] / "bench"
 
 # the only kernels allowed fastmath: the tree pass and its vectorised list sums
 FASTMATH_KERNELS = {
-    "treepass.hierarchy_pass_apart",
+    "treepass.thread_share",
     "treepass.hierarchy_pass_inlined",
     "listsums.direction_sums",
-    "listsums.far_sums_apart",
-    "listsums.near_disk_sums_apart",
-    "listsums.binned_sums_apart",
+    "listsums.direction_sums_flat",
+    "listsums.far_sums_flat",
+    "listsums.near_disk_sums_flat",
+    "listsums.binned_sums_flat",
 }
 
 

@@ -101,12 +101,44 @@ def sum_near(near, n_near, at, add, acc, how):
     coincident); a receiver moved aside at a contact has its own disk removed with the
     near-field candidates."""
     if at.measure == MEASURE_COSINE and at.has_normal:
-        if not at.leveled:
-            return sum_list(near, n_near, at, flat_cosine_term, add, acc, how)
-        if at.gate > ZERO32:
-            return sum_list(near, n_near, at, gated_cosine_term, add, acc, how)
-        return sum_list(near, n_near, at, leveled_cosine_term, add, acc, how)
+        return sum_near_cosine(near, n_near, at, add, acc, how)
     return sum_list(near, n_near, at, disk_term, add, acc, how)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def sum_near_cosine(near, n_near, at, add, acc, how):
+    """:func:`sum_near` for a receiver with a normal, cosine measure (no loop for the
+    other cases: :func:`direction_sums` compiles only these)."""
+    if not at.leveled:
+        return sum_list(near, n_near, at, flat_cosine_term, add, acc, how)
+    if at.gate > ZERO32:
+        return sum_list(near, n_near, at, gated_cosine_term, add, acc, how)
+    return sum_list(near, n_near, at, leveled_cosine_term, add, acc, how)
+
+
+# A pass without weight levels (pass 1: ``at.leveled`` false, ``at.gate`` 0) takes only
+# these loops; compiled for it alone (``*_flat``), the kernels skip the loops of levels
+# and gates, about half of their compile time.
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def sum_far_flat(far, n_far, at, add, acc, how):
+    """:func:`sum_far` without the gate (``at.gate`` 0)."""
+    return sum_list(far, n_far, at, far_node_term, add, acc, how)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def sum_near_flat(near, n_near, at, add, acc, how):
+    """:func:`sum_near` without levels (``at.leveled`` false)."""
+    if at.measure == MEASURE_COSINE and at.has_normal:
+        return sum_list(near, n_near, at, flat_cosine_term, add, acc, how)
+    return sum_list(near, n_near, at, disk_term, add, acc, how)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def sum_near_cosine_flat(near, n_near, at, add, acc, how):
+    """:func:`sum_near_cosine` without levels (``at.leveled`` false)."""
+    return sum_list(near, n_near, at, flat_cosine_term, add, acc, how)
 
 
 # ---------------------------------------------------------------------------------------
@@ -204,12 +236,29 @@ def direction_sums(near, n_near, far, n_far, px, py, pz, nx, ny, nz, frame, max_
     nodes by their centre; wide ones, ``bunnell.is_wide``, whole into column 16). Each
     case has a loop of its own (:func:`sum_list`): one loop with a select on ``leveled``
     was slower."""
+    _direction_sums(near, n_near, far, n_far, px, py, pz, nx, ny, nz, frame, max_d2, min_d2, wr2,
+                    leveled, gate, dirs, sum_near_cosine, sum_far)
+
+
+@njit(cache=True, fastmath=FASTMATH, error_model="numpy")
+def direction_sums_flat(near, n_near, far, n_far, px, py, pz, nx, ny, nz, frame, max_d2, min_d2,
+                        wr2, leveled, gate, dirs):
+    """:func:`direction_sums` for a pass without levels (``leveled`` false, ``gate`` 0)."""
+    _direction_sums(near, n_near, far, n_far, px, py, pz, nx, ny, nz, frame, max_d2, min_d2, wr2,
+                    leveled, gate, dirs, sum_near_cosine_flat, sum_far_flat)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _direction_sums(near, n_near, far, n_far, px, py, pz, nx, ny, nz, frame, max_d2, min_d2, wr2,
+                    leveled, gate, dirs, near_sum, far_sum):
+    """The body of :func:`direction_sums`, the list loops ``near_sum`` and ``far_sum``
+    compile-time arguments."""
     at = site(px, py, pz, nx, ny, nz, True, MEASURE_COSINE, gate, max_d2, min_d2, leveled, wr2)
     z = ZERO32
     sf = (z, z, z, z, z, z, z, z, z, z, z, z, z, z, z, z)
     acc = (sf, sf, z, z)  # wide terms (bunnell.is_wide) in the last two: not binned
-    acc = sum_near(near, n_near, at, add_directed, acc, (S_A, frame, nx, ny, nz))
-    sf, sb, wf, wb = sum_far(far, n_far, at, add_directed, acc, (F_WA, frame, nx, ny, nz))
+    acc = near_sum(near, n_near, at, add_directed, acc, (S_A, frame, nx, ny, nz))
+    sf, sb, wf, wb = far_sum(far, n_far, at, add_directed, acc, (F_WA, frame, nx, ny, nz))
     for k in range(2 * SECTORS):
         dirs[0, k] = sf[k]
         dirs[1, k] = sb[k]
@@ -255,6 +304,13 @@ def binned_sums(near, n_near, far, n_far, at, br2, acc, first):
     everything; far nodes by their centre's distance), and ``first += (front + back
     term) d`` (d: emitter - receiver). Gated passes take the near list's branching term
     (a select on the gate would stop vectorisation)."""
+    _binned_sums(near, n_near, far, n_far, at, br2, acc, first, sum_far)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _binned_sums(near, n_near, far, n_far, at, br2, acc, first, far_sum):
+    """The body of :func:`binned_sums`, the far list's loop ``far_sum`` a compile-time
+    argument."""
     radii = (br2[0], br2[1], br2[2], br2[3], br2[4])
     z = ZERO32
     s = (z, z, z, z, z, z, z, z, z, z, z, z, z, z, z)
@@ -262,7 +318,7 @@ def binned_sums(near, n_near, far, n_far, at, br2, acc, first):
         s = sum_list(near, n_near, at, select_cosine_term, add_binned, s, radii)
     else:
         s = sum_list(near, n_near, at, disk_term, add_binned, s, radii)
-    s = sum_far(far, n_far, at, add_binned, s, radii)
+    s = far_sum(far, n_far, at, add_binned, s, radii)
     for k in range(6):
         acc[0, k] += s[k]
         acc[1, k] += s[6 + k]
@@ -272,23 +328,23 @@ def binned_sums(near, n_near, far, n_far, at, br2, acc, first):
 
 
 # ---------------------------------------------------------------------------------------
-# the same, compiled apart (treepass.hierarchy_pass_apart: a fraction of the compile time),
-# with fastmath: their loops vectorise
+# a pass without levels, the list sums compiled apart (treepass.thread_share: a fraction
+# of the compile time), with fastmath: their loops vectorise
 
 
 @njit(cache=True, fastmath=FASTMATH, error_model="numpy")
-def far_sums_apart(far, n_far, at):
-    """:func:`far_sums`, not inlined into its caller."""
-    return far_sums(far, n_far, at)
+def far_sums_flat(far, n_far, at):
+    """:func:`far_sums` for a pass without levels, not inlined into its caller."""
+    return sum_far_flat(far, n_far, at, add_sides, (ZERO32, ZERO32), ())
 
 
 @njit(cache=True, fastmath=FASTMATH, error_model="numpy")
-def near_disk_sums_apart(near, n_near, at):
-    """:func:`near_disk_sums`, not inlined into its caller."""
-    return near_disk_sums(near, n_near, at)
+def near_disk_sums_flat(near, n_near, at):
+    """:func:`near_disk_sums` for a pass without levels, not inlined into its caller."""
+    return sum_near_flat(near, n_near, at, add_sides, (ZERO32, ZERO32), ())
 
 
 @njit(cache=True, fastmath=FASTMATH, error_model="numpy")
-def binned_sums_apart(near, n_near, far, n_far, at, br2, acc, first):
-    """:func:`binned_sums`, not inlined into its caller."""
-    binned_sums(near, n_near, far, n_far, at, br2, acc, first)
+def binned_sums_flat(near, n_near, far, n_far, at, br2, acc, first):
+    """:func:`binned_sums` for a pass without levels, not inlined into its caller."""
+    _binned_sums(near, n_near, far, n_far, at, br2, acc, first, sum_far_flat)
