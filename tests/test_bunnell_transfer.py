@@ -146,3 +146,20 @@ def test_outgoing_radiance_and_bad_radiance():
         unshadowed_irradiance(el, np.full((el.n_vertices, 3), -1.0))
     with pytest.raises(ValueError, match="radiance"):
         unshadowed_irradiance(el, np.zeros((2, 3)))
+
+
+def test_same_result_for_any_thread_count():
+    import numba
+
+    surface, *_ = _plane_under_emissive_quad(cells=4, quad_cells=4)
+    el = build_elements(surface)
+    radiance = np.random.default_rng(3).uniform(0, 1, (el.n_vertices, 3))
+    before = numba.get_num_threads()
+    try:
+        numba.set_num_threads(1)
+        one = unshadowed_irradiance(el, radiance)
+        numba.set_num_threads(min(2, numba.config.NUMBA_NUM_THREADS))
+        two = unshadowed_irradiance(el, radiance)
+    finally:
+        numba.set_num_threads(before)
+    assert np.array_equal(one, two) and np.count_nonzero(one) > 0
