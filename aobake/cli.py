@@ -57,16 +57,18 @@ class AobakeGroup(click.Group):
 
 
 def _fixed_mmap_threshold() -> None:
-    """Have glibc's malloc map every block over 128 KiB on its own and unmap it when
-    freed. By default the threshold rises to the largest block freed (up to 32 MiB), so a
+    """Have glibc's malloc map every block over 4 MiB on its own and unmap it when freed.
+    By default the threshold rises to the largest block freed (up to 32 MiB), so a
     mesh's freed temporaries stay in the heap and the peak memory of a large bake grows
-    by ~15 bytes per vertex. Linux with glibc only; elsewhere nothing happens."""
+    by ~15 bytes per vertex. 4 MiB, not less: numba's compiler allocates many blocks of
+    hundreds of KiB, and mapping each made a cold compile 1.5x slower (docs/process.md).
+    Linux with glibc only; elsewhere nothing happens."""
     if not sys.platform.startswith("linux"):
         return
     try:
         import ctypes
 
-        ctypes.CDLL("libc.so.6").mallopt(-3, 128 * 1024)  # M_MMAP_THRESHOLD
+        ctypes.CDLL("libc.so.6").mallopt(-3, 4 << 20)  # M_MMAP_THRESHOLD
     except (OSError, AttributeError):
         pass
 
