@@ -211,7 +211,8 @@ def irradiance(
     _check_shading(surface, shading)
     t0 = time.perf_counter()
     progress = progress or NullProgress()
-    threads = max(1, int(options.threads or os.cpu_count() or 1))
+    cores = os.cpu_count() or 1
+    threads = max(1, min(int(options.threads or cores), cores))  # more: no faster, more memory
     n = surface.n_vertices
     lights = tuple(light for light in shading.lights)
     n_lights = len(lights)
