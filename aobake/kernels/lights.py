@@ -397,15 +397,22 @@ def add_samples(ids, w, row, comp, m, sums, squares):
 
 
 @njit(cache=True, error_model="numpy", nogil=True)
-def first_rays(
-    vertices, per, p0, origins, normals, keys, vertex_of, alive, throughput, value_d, value_i, out_live, out_org, out_dir
-):  # fmt: skip
-    """Start paths 0..len(vertices) * per - 1 (``per`` a vertex in order, path s of a
-    vertex is its sample ``p0 + s``) and write their first rays, compacted as
-    :func:`bounce_directions` writes them at depth 0 (same values): from the vertex's
-    offset origin, a scrambled Sobol cosine-weighted direction about its normal, the
-    frame made once a vertex. Paths of a vertex without a normal are dead. Returns the
-    number of rays."""
+def path_hashes(p0, p1):
+    """(p1 - p0,) uint64: the index half of the hash of a vertex's paths p0..p1-1
+    (:func:`aobake.kernels.rng.index_hash`), shared by every vertex and depth."""
+    out = np.empty(p1 - p0, dtype=np.uint64)
+    for s in range(p1 - p0):
+        out[s] = rng.index_hash(p0 + s)
+    return out
+
+
+@njit(cache=True, error_model="numpy", nogil=True)
+def first_rays(vertices, per, p0, origins, normals, keys, alive, throughput, value_d, value_i, out_live, out_org, out_dir):
+    """Start paths 0..len(vertices) * per - 1 (``per`` a vertex in order: path
+    ``a * per + s`` is sample ``p0 + s`` of ``vertices[a]``) and write their first rays,
+    compacted (``out_live[r]`` the path): from the vertex's offset origin, a scrambled
+    Sobol cosine-weighted direction about its normal, the frame made once a vertex.
+    Paths of a vertex without a normal are dead. Returns the number of rays."""
     m = 0
     for a in range(vertices.shape[0]):
         v = vertices[a]
@@ -413,7 +420,6 @@ def first_rays(
         has_normal = nx != 0.0 or ny != 0.0 or nz != 0.0
         for s in range(per):
             p = a * per + s
-            vertex_of[p] = v
             alive[p] = has_normal
             for k in range(3):
                 throughput[p, k] = 1.0
@@ -439,38 +445,32 @@ def first_rays(
 
 
 @njit(cache=True, error_model="numpy", nogil=True)
-def bounce_directions(path_org, path_normal, alive, keys, vertex_of, index_of, depth, inv_scale, out_live, out_org, out_dir):
-    """Rays of the live paths, compacted: ``out_live[r]`` the path, its origin (float32,
-    Embree's frame) and a cosine-weighted direction about its normal. Path p is sample
-    ``index_of[p]`` of vertex ``vertex_of[p]`` at ``depth``. The first direction is a
-    scrambled Sobol point; later ones and the samples at hits are independent hashes:
-    two Owen-scrambled copies of one sequence indexed alike are correlated, and a path
-    multiplies them (measured: a bias of ~20% on the box's indirect light). Returns
-    the number of rays."""
+def bounce_directions(path_org, path_normal, alive, keys, vertices, per, hashes, depth, inv_scale, out_live, out_org, out_dir):
+    """Rays of the live paths after their first hit (``depth`` >= 1), compacted:
+    ``out_live[r]`` the path, its origin (float32, Embree's frame) and a cosine-weighted
+    direction about its normal. Paths are laid out as by :func:`first_rays`; ``hashes``
+    (:func:`path_hashes`) is their index's. The first direction is a scrambled Sobol
+    point; these are independent hashes: two Owen-scrambled copies of one sequence
+    indexed alike are correlated, and a path multiplies them (measured: a bias of ~20%
+    on the box's indirect light). Returns the number of rays."""
     m = 0
-    last = -1  # a vertex's paths are consecutive: its key and seeds are made once
-    key = s0 = s1 = np.uint64(0)
-    for p in range(alive.shape[0]):
-        if not alive[p]:
-            continue
-        if vertex_of[p] != last:
-            last = vertex_of[p]
-            key = rng.hash2(keys[last], np.uint64(1000003 + depth))
-            s0, s1 = rng.scramble_seeds(key)
-        if depth == 0:
-            u0, u1 = rng.scrambled_sobol2_seeded(index_of[p], s0, s1)
-        else:
-            u0, u1 = rng.random2(index_of[p], key)
-        x, y, z = warps.square_to_cosine_hemisphere(u0, u1)
-        dx, dy, dz = warps.to_world(x, y, z, path_normal[p, 0], path_normal[p, 1], path_normal[p, 2])
-        out_live[m] = p
-        out_org[m, 0] = path_org[p, 0] * inv_scale
-        out_org[m, 1] = path_org[p, 1] * inv_scale
-        out_org[m, 2] = path_org[p, 2] * inv_scale
-        out_dir[m, 0] = dx
-        out_dir[m, 1] = dy
-        out_dir[m, 2] = dz
-        m += 1
+    for a in range(vertices.shape[0]):
+        key = rng.hash2(keys[vertices[a]], np.uint64(1000003 + depth))
+        for s in range(per):
+            p = a * per + s
+            if not alive[p]:
+                continue
+            u0, u1 = rng.random2_hashed(hashes[s], key)
+            x, y, z = warps.square_to_cosine_hemisphere(u0, u1)
+            dx, dy, dz = warps.to_world(x, y, z, path_normal[p, 0], path_normal[p, 1], path_normal[p, 2])
+            out_live[m] = p
+            out_org[m, 0] = path_org[p, 0] * inv_scale
+            out_org[m, 1] = path_org[p, 1] * inv_scale
+            out_org[m, 2] = path_org[p, 2] * inv_scale
+            out_dir[m, 0] = dx
+            out_dir[m, 1] = dy
+            out_dir[m, 2] = dz
+            m += 1
     return m
 
 
@@ -557,18 +557,17 @@ def follow_hits(
 
 @njit(cache=True, error_model="numpy", nogil=True)
 def hit_samples(
-    alive, path_org, path_normal, throughput, keys, vertex_of, index_of, depth,
+    alive, path_org, path_normal, throughput, keys, vertices, per, hashes, depth,
     kinds, params, has_emitters, pos, faces, tris, cdf, emission, lum_total, shorten, inv_scale, far_cap,
     value, out_org, out_dir, out_far, out_w, out_row,
 ):  # fmt: skip
     """Next-event estimation at every live path's hit point: one sample per light (the
     dome excluded: escaping paths see it) and one of the emitters, weighted by the
-    path's throughput. A light without shadows adds to ``value`` at once; the others
-    are written as rays as in :func:`direct_samples` (``out_row`` = path). Returns the
-    number of rays."""
+    path's throughput. Paths are laid out as by :func:`first_rays`. A light without
+    shadows adds to ``value`` at once; the others are written as rays as in
+    :func:`direct_samples` (``out_row`` = path). Returns the number of rays."""
     n_lights = kinds.shape[0]
     m = 0
-    last = -1  # a vertex's paths are consecutive: its per-component keys are made once
     comp_keys = np.zeros(n_lights + 1, dtype=np.uint64)
     # per component, once a call: sampled here (the dome with shadows and absent
     # emitters are not), has a finite range to test, casts shadow rays
@@ -581,53 +580,52 @@ def hit_samples(
         ranged[c] = kind != DISTANT and kind != DOME and params[c, P_RANGE] < np.inf
         shadows[c] = params[c, P_SHADOW] > 0.0
     sampled[n_lights] = has_emitters
-    for p in range(alive.shape[0]):
-        if not alive[p]:
-            continue
-        ox, oy, oz = path_org[p, 0], path_org[p, 1], path_org[p, 2]
-        nx, ny, nz = path_normal[p, 0], path_normal[p, 1], path_normal[p, 2]
-        if vertex_of[p] != last:
-            last = vertex_of[p]
-            key = rng.hash2(keys[last], np.uint64(2000003 + depth))
-            for c in range(n_lights + 1):
-                comp_keys[c] = rng.hash2(key, np.uint64(c))
+    for a in range(vertices.shape[0]):
+        key = rng.hash2(keys[vertices[a]], np.uint64(2000003 + depth))
         for c in range(n_lights + 1):
-            if not sampled[c]:
+            comp_keys[c] = rng.hash2(key, np.uint64(c))
+        for s in range(per):
+            p = a * per + s
+            if not alive[p]:
                 continue
-            if ranged[c]:  # beyond the range: no sample (the other culling makes w = 0)
-                tx, ty, tz = params[c, P_POS] - ox, params[c, P_POS + 1] - oy, params[c, P_POS + 2] - oz
-                if not tx * tx + ty * ty + tz * tz < params[c, P_RANGE] * params[c, P_RANGE]:
+            ox, oy, oz = path_org[p, 0], path_org[p, 1], path_org[p, 2]
+            nx, ny, nz = path_normal[p, 0], path_normal[p, 1], path_normal[p, 2]
+            for c in range(n_lights + 1):
+                if not sampled[c]:
                     continue
-            shadow = shadows[c]
-            u0, u1 = rng.random2(index_of[p], comp_keys[c])
-            if c < n_lights:
-                wr, wg, wb, dx, dy, dz, dist = sample_light(kinds[c], params, c, ox, oy, oz, nx, ny, nz, u0, u1)
-            else:
-                wr, wg, wb, dx, dy, dz, dist = sample_emitter(
-                    ox, oy, oz, nx, ny, nz, u0, u1, pos, faces, tris, cdf, emission, lum_total, shorten
-                )
-            wr *= throughput[p, 0]
-            wg *= throughput[p, 1]
-            wb *= throughput[p, 2]
-            if not (wr > 0.0 or wg > 0.0 or wb > 0.0):
-                continue
-            if not shadow:
-                value[p, 0] += wr
-                value[p, 1] += wg
-                value[p, 2] += wb
-                continue
-            out_org[m, 0] = ox * inv_scale
-            out_org[m, 1] = oy * inv_scale
-            out_org[m, 2] = oz * inv_scale
-            out_dir[m, 0] = dx
-            out_dir[m, 1] = dy
-            out_dir[m, 2] = dz
-            out_far[m] = min(dist * inv_scale, far_cap)
-            out_w[m, 0] = wr
-            out_w[m, 1] = wg
-            out_w[m, 2] = wb
-            out_row[m] = p
-            m += 1
+                if ranged[c]:  # beyond the range: no sample (the other culling makes w = 0)
+                    tx, ty, tz = params[c, P_POS] - ox, params[c, P_POS + 1] - oy, params[c, P_POS + 2] - oz
+                    if not tx * tx + ty * ty + tz * tz < params[c, P_RANGE] * params[c, P_RANGE]:
+                        continue
+                u0, u1 = rng.random2_hashed(hashes[s], comp_keys[c])
+                if c < n_lights:
+                    wr, wg, wb, dx, dy, dz, dist = sample_light(kinds[c], params, c, ox, oy, oz, nx, ny, nz, u0, u1)
+                else:
+                    wr, wg, wb, dx, dy, dz, dist = sample_emitter(
+                        ox, oy, oz, nx, ny, nz, u0, u1, pos, faces, tris, cdf, emission, lum_total, shorten
+                    )
+                wr *= throughput[p, 0]
+                wg *= throughput[p, 1]
+                wb *= throughput[p, 2]
+                if not (wr > 0.0 or wg > 0.0 or wb > 0.0):
+                    continue
+                if not shadows[c]:
+                    value[p, 0] += wr
+                    value[p, 1] += wg
+                    value[p, 2] += wb
+                    continue
+                out_org[m, 0] = ox * inv_scale
+                out_org[m, 1] = oy * inv_scale
+                out_org[m, 2] = oz * inv_scale
+                out_dir[m, 0] = dx
+                out_dir[m, 1] = dy
+                out_dir[m, 2] = dz
+                out_far[m] = min(dist * inv_scale, far_cap)
+                out_w[m, 0] = wr
+                out_w[m, 1] = wg
+                out_w[m, 2] = wb
+                out_row[m] = p
+                m += 1
     return m
 
 
@@ -645,15 +643,17 @@ def add_path_samples(ids, w, row, m, value):
 @njit(cache=True, error_model="numpy", nogil=True)
 def path_sums(value_direct, value_indirect, per, sums_direct, sums_indirect, squares):
     """Per vertex of the chunk: the sums of its ``per`` consecutive paths' direct and
-    indirect values and of the squares of their totals, in path order."""
+    indirect values and of the squares of their totals, in path order (in registers: a
+    sum read and written back through the array every path took twice as long)."""
     for a in range(sums_direct.shape[0]):
-        for s in range(per):
-            p = a * per + s
-            for k in range(3):
-                d, i = value_direct[p, k], value_indirect[p, k]
-                sums_direct[a, k] += d
-                sums_indirect[a, k] += i
-                squares[a, k] += (d + i) * (d + i)
+        for k in range(3):
+            sd, si, sq = sums_direct[a, k], sums_indirect[a, k], squares[a, k]
+            for s in range(per):
+                d, i = value_direct[a * per + s, k], value_indirect[a * per + s, k]
+                sd += d
+                si += i
+                sq += (d + i) * (d + i)
+            sums_direct[a, k], sums_indirect[a, k], squares[a, k] = sd, si, sq
 
 
 @njit(cache=True, error_model="numpy", nogil=True)
