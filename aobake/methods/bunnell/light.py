@@ -31,6 +31,7 @@ from ...contacts import contact_origins, ray_offsets
 from ...errors import InputError, NumericalError
 from ...ground import Ground
 from ...kernels import lights as _kl
+from ...kernels import lightshadow as _kls
 from ...kernels import rays as _k
 from ...kernels import topology as _topo
 from ...kernels import warps as _warps
@@ -46,6 +47,10 @@ from .transfer import transfer
 #: pairs; 20,000 vertices: about a second per pass on two cores) until the tree lands.
 MAX_VERTICES = 20_000
 
+#: Patches each light (and the emitting triangles together) is cut into for the aimed
+#: shadow pass: every receiver, occluder and patch is a term.
+LIGHT_PATCHES = 16
+
 #: Shadow passes after the pass that distributes the light (the published scheme: two).
 SHADOW_PASSES = 2
 
@@ -60,12 +65,20 @@ class EmitterDisks:
     centres, normals : (k, 3) float64
     areas : (k,) float64
     radiance : (k, 3) float64
+    group : (k,) int64
+        The light each disk belongs to: 0, 1... in the order of the lights cut, the
+        emitting triangles last (one group).
     """
 
     centres: np.ndarray
     normals: np.ndarray
     areas: np.ndarray
     radiance: np.ndarray
+    group: np.ndarray
+
+    @property
+    def n_groups(self) -> int:
+        return int(self.group.max()) + 1 if self.group.size else 0
 
     @property
     def size(self) -> int:
@@ -102,6 +115,7 @@ def disk_light(
     bounces: int | None = None,
     shadow_passes: int = SHADOW_PASSES,
     light_disks: int = LIGHT_DISKS,
+    aimed: bool = True,
     progress: Progress | None = None,
     ground: Ground | None = None,
 ) -> LightResult:
@@ -119,6 +133,11 @@ def disk_light(
         Passes after the distributing one (0 = unshadowed transfer).
     light_disks : int
         Disks each area light (and the emitting triangles together) is cut into.
+    aimed : bool
+        Shadow the emitted light with :func:`_aimed` (a disk blocks a light only along
+        the line from the receiver through it to the light); False: as the bounced
+        light, the published scheme (each disk blocks the light falling on its far side
+        from every direction alike).
     ground : aobake.ground.Ground, optional
         Occludes the shadow rays and the dome; its reflected light is not modelled.
 
@@ -154,7 +173,11 @@ def disk_light(
     emitters = emitter_disks(elements, shading, lights, light_disks)
     negative = np.zeros(n, dtype=bool)
     if emitters.size:
-        lit, low = _shadowed(elements, emitters, None, shadow_passes, progress)
+        if aimed:
+            patches = emitter_disks(elements, shading, lights, LIGHT_PATCHES)
+            lit, low = _aimed(elements, emitters, patches, shadow_passes, progress)
+        else:
+            lit, low = _shadowed(elements, emitters, None, shadow_passes, progress)
         direct = direct + lit
         negative |= low
     else:
@@ -206,9 +229,7 @@ def _shadowed(elements: DiskElements, emitters: EmitterDisks | None, radiance, p
     transfer's ``A |cos_e| cos_r / (pi r^2 + A)``."""
     idx = elements.emitter_index
     n = elements.n_vertices
-    front_p, front_n = elements.points, elements.normals
-    lift = NEAR_OFFSET_REL * np.sqrt(elements.areas)[:, None] * elements.normals
-    back_p, back_n = elements.positions - lift, -elements.normals
+    front_p, front_n, back_p, back_n = _sides(elements)
     if emitters is not None:
         src = (emitters.centres, emitters.normals, emitters.areas, emitters.radiance, np.full(emitters.size, -1, dtype=np.int64))
     else:
@@ -231,19 +252,66 @@ def _shadowed(elements: DiskElements, emitters: EmitterDisks | None, radiance, p
     return np.maximum(e_f, 0.0), low
 
 
+def _sides(elements: DiskElements):
+    """Receivers on both sides of every vertex: (front points, normals, back points, normals)."""
+    lift = NEAR_OFFSET_REL * np.sqrt(elements.areas)[:, None] * elements.normals
+    return elements.points, elements.normals, elements.positions - lift, -elements.normals
+
+
+def _aimed(elements: DiskElements, emitters: EmitterDisks, patches: EmitterDisks, passes: int, progress) -> tuple:
+    """Irradiance at the vertices (front side) from ``emitters``, shadowed by the vertex
+    disks in ``passes`` passes aimed at the lights; and the vertices taken below zero.
+
+    Pass 0 distributes each light's disks unshadowed, U, to both sides of every vertex.
+    Pass k subtracts at each receiver, for every vertex disk whose line from the
+    receiver meets a light beyond it, ``pi G L v``: L the light's radiance there, v the
+    fraction of that light pass k - 1 left on the disk's side facing the light (1 in the
+    first: Bunnell's second pass weights occluders by their own accessibility alike)."""
+    idx = elements.emitter_index
+    n, n_groups = elements.n_vertices, emitters.n_groups
+    front_p, front_n, back_p, back_n = _sides(elements)
+    first = np.zeros((2, n, n_groups, 3))
+    for g in range(n_groups):
+        sel = emitters.group == g
+        src = (emitters.centres[sel], emitters.normals[sel], emitters.areas[sel], emitters.radiance[sel],
+               np.full(int(sel.sum()), -1, dtype=np.int64))  # fmt: skip
+        first[0, :, g] = _gather(front_p, front_n, *src)
+        first[1, :, g] = _gather(back_p, back_n, *src)
+    progress.advance(1)
+    occ = np.ascontiguousarray(np.column_stack([elements.positions[idx], elements.normals[idx], elements.areas[idx]]))
+    rows = np.column_stack([patches.centres, patches.normals, patches.areas, patches.radiance, patches.group])
+    rows = np.ascontiguousarray(rows, dtype=np.float64)
+    lit = first
+    blocked = np.empty((n, n_groups))
+    for _ in range(passes):
+        u = first[:, idx].sum(axis=-1)
+        e = np.maximum(lit[:, idx], 0.0).sum(axis=-1)
+        vis = np.where(u > 0.0, np.minimum(e / np.where(u > 0.0, u, 1.0), 1.0), 0.0)
+        vis = np.ascontiguousarray(vis.transpose(1, 0, 2))  # (k, side, group)
+        lit = np.empty_like(first)
+        for side, (pts, nrm) in enumerate(((front_p, front_n), (back_p, back_n))):
+            _kls.aimed_shadow(pts, nrm, occ, idx, vis, rows, blocked)
+            lit[side] = first[side] * (1.0 - blocked)[:, :, None]
+        progress.advance(1)
+    low = np.any(lit[0] < 0.0, axis=(1, 2)) if n else np.zeros(0, dtype=bool)
+    return np.maximum(lit[0], 0.0).sum(axis=1), low
+
+
 def emitter_disks(elements: DiskElements, shading: Shading, lights=(), light_disks: int = LIGHT_DISKS) -> EmitterDisks:
     """The emitting disks of ``lights``' rect, disk and sphere lights (not treated as
     points) and of ``shading``'s emitting triangles, in ``elements``' frame: each light cut
     into about ``light_disks`` cells of equal area, each emitting triangle into s^2
     similar triangles (about ``light_disks`` over all of them), a disk at each centre."""
     parts = []
+    to_local = lambda x: (np.asarray(x, dtype=np.float64) - elements.origin) / elements.scale  # noqa: E731
     for light in lights:
         if light.is_black or light.kind not in AREA_KINDS:
             continue
+        g = len(parts)
         if light.kind == "rect":
             s = max(1, round(math.sqrt(light_disks)))
             t = (2.0 * np.arange(s) + 1.0) / s - 1.0
-            a, b = (g.ravel() for g in np.meshgrid(t, t, indexing="ij"))
+            a, b = (x.ravel() for x in np.meshgrid(t, t, indexing="ij"))
             centres = light.position + a[:, None] * light.u + b[:, None] * light.v
             normals = np.broadcast_to(light.normal, centres.shape)
         elif light.kind == "disk":
@@ -261,31 +329,22 @@ def emitter_disks(elements: DiskElements, shading: Shading, lights=(), light_dis
             rho = np.sqrt(np.maximum(0.0, 1.0 - z * z))
             normals = np.stack([rho * np.cos(phi), rho * np.sin(phi), z], axis=1)
             centres = light.position + light.radius * normals
-        area = np.full(len(centres), light.area / len(centres))
-        parts.append((centres, np.asarray(normals), area, np.broadcast_to(light.value, centres.shape)))
-    tris = _emitting_triangles(elements, shading, light_disks)
-    if tris is not None:
-        parts.append(tris)
+        parts.append((to_local(centres), np.asarray(normals), np.full(len(centres), light.area / len(centres) / elements.scale**2),
+                      np.broadcast_to(light.value, centres.shape), np.full(len(centres), g)))  # fmt: skip
+    emitting = _emitting_triangles(elements, shading, light_disks, len(parts))
+    if emitting is not None:
+        parts.append(emitting)
     if not parts:
         z3 = np.zeros((0, 3))
-        return EmitterDisks(z3, z3, np.zeros(0), z3)
-    centres, normals, areas, radiance = (np.concatenate([p[i] for p in parts]) for i in range(4))
-    is_light = np.zeros(len(areas), dtype=bool)
-    is_light[: sum(len(p[2]) for p in parts[: len(parts) - (tris is not None)])] = True
-    # lights are in world space: the elements' normalised frame
-    centres = np.where(is_light[:, None], (centres - elements.origin) / elements.scale, centres)
-    areas = np.where(is_light, areas / elements.scale**2, areas)
-    return EmitterDisks(
-        np.ascontiguousarray(centres, dtype=np.float64),
-        np.ascontiguousarray(normals, dtype=np.float64),
-        np.ascontiguousarray(areas, dtype=np.float64),
-        np.ascontiguousarray(radiance, dtype=np.float64),
-    )
+        return EmitterDisks(z3, z3, np.zeros(0), z3, np.zeros(0, dtype=np.int64))
+    fields = [np.ascontiguousarray(np.concatenate([p[i] for p in parts]), dtype=np.float64) for i in range(4)]
+    group = np.concatenate([p[4] for p in parts]).astype(np.int64)
+    return EmitterDisks(*fields, group)
 
 
-def _emitting_triangles(elements: DiskElements, shading: Shading, light_disks: int):
-    """(centres, normals, areas, radiance) of the emitting triangles cut into s^2 similar
-    triangles each (normalised frame), or None without any."""
+def _emitting_triangles(elements: DiskElements, shading: Shading, light_disks: int, group: int):
+    """(centres, normals, areas, radiance, group) of the emitting triangles cut into s^2
+    similar triangles each (normalised frame); None without any."""
     emission = np.asarray(shading.face_emission, dtype=np.float64)
     faces = elements.faces
     if faces.size == 0:
@@ -312,15 +371,9 @@ def _emitting_triangles(elements: DiskElements, shading: Shading, light_disks: i
         pts = c[:, None, 0] + bary[None, :, :1] * (c[:, None, 1] - c[:, None, 0]) + bary[None, :, 1:] * (c[:, None, 2] - c[:, None, 0])
         k = bary.shape[0]
         unit = cross[rows] / length[rows][:, None]
-        out.append(
-            (
-                pts.reshape(-1, 3),
-                np.repeat(unit, k, axis=0),
-                np.repeat(0.5 * length[rows] / k, k),
-                np.repeat(emission[rows], k, axis=0),
-            )
-        )
-    return tuple(np.concatenate([o[i] for o in out]) for i in range(4))
+        out.append((pts.reshape(-1, 3), np.repeat(unit, k, axis=0), np.repeat(0.5 * length[rows] / k, k), np.repeat(emission[rows], k, axis=0)))
+    fields = [np.concatenate([o[i] for o in out]) for i in range(4)]
+    return (*fields, np.full(len(fields[2]), group))
 
 
 def _exact_direct(surface: Surface, lights, options: BunnellOptions, ground: Ground | None):
