@@ -19,6 +19,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from ...checks import numba_threads
 from ...constants import (
     BLOCK_RAYS,
     EPS32,
@@ -98,6 +99,8 @@ def run_light(
     ``options`` (its ``bounces``; ``indirect=False``: direct light only). A vertex whose
     shadowed light went negative is set to 0 and counted (a warning, and ``negative``)."""
     result = disk_light(surface, shading, options, bounces=options.bounces if indirect else 0, progress=progress, ground=ground)
+    if ground is not None and indirect and options.bounces > 0:
+        warnings.warn(f"{surface.source}: --method bunnell does not bounce light off the --ground plane (it occludes)", stacklevel=2)
     if result.negative:
         warnings.warn(
             f"{surface.source}: the disk method's shadow passes took {result.negative} vertices' light below zero; "
@@ -157,6 +160,13 @@ def disk_light(
             f"{n:,} vertices: --method bunnell lights at most {MAX_VERTICES:,} until its transfer has a tree "
             "(use --method embree, or --effects ao)",
         )
+    with numba_threads(options.threads):
+        return _disk_light(surface, shading, options, bounces, shadow_passes, light_disks, aimed, progress, ground)
+
+
+def _disk_light(surface, shading, options, bounces, shadow_passes, light_disks, aimed, progress, ground) -> LightResult:
+    """:func:`disk_light` once the inputs are checked."""
+    n = surface.n_vertices
     t0 = time.perf_counter()
     progress = progress or NullProgress()
     lights = tuple(shading.lights)
@@ -174,8 +184,8 @@ def disk_light(
     negative = np.zeros(n, dtype=bool)
     if emitters.size:
         if aimed:
-            patches = emitter_disks(elements, shading, lights, LIGHT_PATCHES)
-            lit, low = _aimed(elements, emitters, patches, shadow_passes, progress)
+            patches = _merged(emitter_disks(elements, shading, lights, LIGHT_PATCHES), LIGHT_PATCHES)
+            lit, low = _aimed(elements, emitters, patches, shadow_passes, progress, _emitting_vertices(surface, shading))
         else:
             lit, low = _shadowed(elements, emitters, None, shadow_passes, progress)
         direct = direct + lit
@@ -252,13 +262,60 @@ def _shadowed(elements: DiskElements, emitters: EmitterDisks | None, radiance, p
     return np.maximum(e_f, 0.0), low
 
 
+def _merged(disks: EmitterDisks, count: int) -> EmitterDisks:
+    """``disks`` with each group of more than ``count`` disks (the emitting triangles, at
+    least one disk each) merged into ``count`` patches along a Morton order: summed
+    area, area-weighted centre, normal and radiance."""
+    keep, merged = [], []
+    for g in range(disks.n_groups):
+        sel = np.flatnonzero(disks.group == g)
+        if sel.size <= count:
+            keep.append(sel)
+            continue
+        c = disks.centres[sel]
+        lo, span = c.min(axis=0), np.ptp(c, axis=0).max() or 1.0
+        q = np.minimum(((c - lo) / span * 1024).astype(np.int64), 1023)
+        key = np.zeros(sel.size, dtype=np.int64)
+        for bit in range(10):
+            for axis in range(3):
+                key |= ((q[:, axis] >> bit) & 1) << (3 * bit + axis)
+        order = sel[np.argsort(key, kind="stable")]
+        for chunk in np.array_split(order, count):
+            a = disks.areas[chunk]
+            w = a / a.sum()
+            m = (disks.normals[chunk] * a[:, None]).sum(axis=0)
+            norm = np.linalg.norm(m)
+            merged.append((w @ disks.centres[chunk], m / norm if norm > 0 else disks.normals[chunk[0]], a.sum(),
+                           w @ disks.radiance[chunk], g))  # fmt: skip
+    idx = np.concatenate(keep) if keep else np.zeros(0, dtype=np.int64)
+    if not merged:
+        return disks
+    return EmitterDisks(
+        np.concatenate([disks.centres[idx], [m[0] for m in merged]]),
+        np.concatenate([disks.normals[idx], [m[1] for m in merged]]),
+        np.concatenate([disks.areas[idx], [m[2] for m in merged]]),
+        np.concatenate([disks.radiance[idx], [m[3] for m in merged]]),
+        np.concatenate([disks.group[idx], [m[4] for m in merged]]).astype(np.int64),
+    )
+
+
+def _emitting_vertices(surface: Surface, shading: Shading):
+    """(n,) bool: the vertices of emitting triangles, or None without any."""
+    on = np.any(np.asarray(shading.face_emission) > 0, axis=1)
+    if not on.any():
+        return None
+    out = np.zeros(surface.n_vertices, dtype=bool)
+    out[np.asarray(surface.faces)[on].ravel()] = True
+    return out
+
+
 def _sides(elements: DiskElements):
     """Receivers on both sides of every vertex: (front points, normals, back points, normals)."""
     lift = NEAR_OFFSET_REL * np.sqrt(elements.areas)[:, None] * elements.normals
     return elements.points, elements.normals, elements.positions - lift, -elements.normals
 
 
-def _aimed(elements: DiskElements, emitters: EmitterDisks, patches: EmitterDisks, passes: int, progress) -> tuple:
+def _aimed(elements: DiskElements, emitters: EmitterDisks, patches: EmitterDisks, passes: int, progress, emitting=None) -> tuple:
     """Irradiance at the vertices (front side) from ``emitters``, shadowed by the vertex
     disks in ``passes`` passes aimed at the lights; and the vertices taken below zero.
 
@@ -266,7 +323,9 @@ def _aimed(elements: DiskElements, emitters: EmitterDisks, patches: EmitterDisks
     Pass k subtracts at each receiver, for every vertex disk whose line from the
     receiver meets a light beyond it, ``pi G L v``: L the light's radiance there, v the
     fraction of that light pass k - 1 left on the disk's side facing the light (1 in the
-    first: Bunnell's second pass weights occluders by their own accessibility alike)."""
+    first: Bunnell's second pass weights occluders by their own accessibility alike).
+    ``emitting`` (n,) bool: vertices of emitting triangles, which do not shadow the
+    emitting triangles' light (the last group): they lie in it."""
     idx = elements.emitter_index
     n, n_groups = elements.n_vertices, emitters.n_groups
     front_p, front_n, back_p, back_n = _sides(elements)
@@ -288,6 +347,8 @@ def _aimed(elements: DiskElements, emitters: EmitterDisks, patches: EmitterDisks
         e = np.maximum(lit[:, idx], 0.0).sum(axis=-1)
         vis = np.where(u > 0.0, np.minimum(e / np.where(u > 0.0, u, 1.0), 1.0), 0.0)
         vis = np.ascontiguousarray(vis.transpose(1, 0, 2))  # (k, side, group)
+        if emitting is not None:
+            vis[emitting[idx], :, n_groups - 1] = 0.0
         lit = np.empty_like(first)
         for side, (pts, nrm) in enumerate(((front_p, front_n), (back_p, back_n))):
             _kls.aimed_shadow(pts, nrm, occ, idx, vis, rows, blocked)
