@@ -112,15 +112,16 @@ def test_furnace_inside_a_closed_sphere(bounces):
 
 def test_the_box_against_the_ray_traced_reference():
     """The bundled box (RectLight, one bounce) at the defaults: relative RMSE of the
-    irradiance within 0.13 of the reference's (0.102 against 4,096 samples and 8,192
-    paths, docs/bunnell-light.md); finite and non-negative, deterministic."""
+    irradiance within the goal, 0.08, of a 256-sample reference (0.051 against 4,096
+    samples and 16,384 paths, docs/bunnell-light.md); finite and non-negative, the same
+    on one thread."""
     surface = load_mesh(CORNELL)
     shading = read_shading(CORNELL, surface)
     ref = irradiance(surface, shading, n_samples=256, n_indirect=256, seed=3)
     r = disk_light(surface, shading)
     e, e_ref = r.irradiance, ref.irradiance
     assert np.isfinite(e).all() and e.min() >= 0
-    assert math.sqrt(((e - e_ref) ** 2).sum() / (e_ref**2).sum()) < 0.13
+    assert math.sqrt(((e - e_ref) ** 2).sum() / (e_ref**2).sum()) < 0.08
     again = disk_light(surface, shading, BunnellOptions(threads=1))
     assert np.array_equal(again.irradiance, e)
 

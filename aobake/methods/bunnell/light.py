@@ -52,6 +52,7 @@ MAX_VERTICES = 20_000
 #: shadow pass: every receiver, occluder and patch is a term.
 LIGHT_PATCHES = 16
 
+
 #: Shadow passes after the pass that distributes the light (the published scheme: two).
 SHADOW_PASSES = 2
 
@@ -119,6 +120,7 @@ def disk_light(
     shadow_passes: int = SHADOW_PASSES,
     light_disks: int = LIGHT_DISKS,
     aimed: bool = True,
+    faces_occlude: bool = True,
     progress: Progress | None = None,
     ground: Ground | None = None,
 ) -> LightResult:
@@ -141,6 +143,8 @@ def disk_light(
         the line from the receiver through it to the light); False: as the bounced
         light, the published scheme (each disk blocks the light falling on its far side
         from every direction alike).
+    faces_occlude : bool
+        In the aimed passes the triangles occlude (False: the vertex disks).
     ground : aobake.ground.Ground, optional
         Occludes the shadow rays and the dome; its reflected light is not modelled.
 
@@ -161,10 +165,12 @@ def disk_light(
             "(use --method embree, or --effects ao)",
         )
     with numba_threads(options.threads):
-        return _disk_light(surface, shading, options, bounces, shadow_passes, light_disks, aimed, progress, ground)
+        return _disk_light(surface, shading, options, bounces, shadow_passes, light_disks, aimed, faces_occlude, progress, ground)
 
 
-def _disk_light(surface, shading, options, bounces, shadow_passes, light_disks, aimed, progress, ground) -> LightResult:
+def _disk_light(
+    surface, shading, options, bounces, shadow_passes, light_disks, aimed, faces_occlude, progress, ground
+) -> LightResult:  # fmt: skip
     """:func:`disk_light` once the inputs are checked."""
     n = surface.n_vertices
     t0 = time.perf_counter()
@@ -185,7 +191,8 @@ def _disk_light(surface, shading, options, bounces, shadow_passes, light_disks, 
     if emitters.size:
         if aimed:
             patches = _merged(emitter_disks(elements, shading, lights, LIGHT_PATCHES), LIGHT_PATCHES)
-            lit, low = _aimed(elements, emitters, patches, shadow_passes, progress, _emitting_vertices(surface, shading))
+            emitting = _emitting_vertices(surface, shading)
+            lit, low = _aimed(elements, emitters, patches, shadow_passes, progress, emitting, faces_occlude)
         else:
             lit, low = _shadowed(elements, emitters, None, shadow_passes, progress)
         direct = direct + lit
@@ -315,7 +322,10 @@ def _sides(elements: DiskElements):
     return elements.points, elements.normals, elements.positions - lift, -elements.normals
 
 
-def _aimed(elements: DiskElements, emitters: EmitterDisks, patches: EmitterDisks, passes: int, progress, emitting=None) -> tuple:
+def _aimed(
+    elements: DiskElements, emitters: EmitterDisks, patches: EmitterDisks, passes: int, progress, emitting=None,
+    faces_occlude: bool = True,
+) -> tuple:  # fmt: skip
     """Irradiance at the vertices (front side) from ``emitters``, shadowed by the vertex
     disks in ``passes`` passes aimed at the lights; and the vertices taken below zero.
 
@@ -325,7 +335,10 @@ def _aimed(elements: DiskElements, emitters: EmitterDisks, patches: EmitterDisks
     fraction of that light pass k - 1 left on the disk's side facing the light (1 in the
     first: Bunnell's second pass weights occluders by their own accessibility alike).
     ``emitting`` (n,) bool: vertices of emitting triangles, which do not shadow the
-    emitting triangles' light (the last group): they lie in it."""
+    emitting triangles' light (the last group): they lie in it. ``faces_occlude``: the
+    occluders are the triangles (centroid, normal, area; a side's light the mean of its
+    corners'), which tile the surface, rather than the vertex disks, whose circles
+    leave gaps and overhang edges (direct light on the box: 4.6% against 10.6%)."""
     idx = elements.emitter_index
     n, n_groups = elements.n_vertices, emitters.n_groups
     front_p, front_n, back_p, back_n = _sides(elements)
@@ -337,21 +350,39 @@ def _aimed(elements: DiskElements, emitters: EmitterDisks, patches: EmitterDisks
         first[0, :, g] = _gather(front_p, front_n, *src)
         first[1, :, g] = _gather(back_p, back_n, *src)
     progress.advance(1)
-    occ = np.ascontiguousarray(np.column_stack([elements.positions[idx], elements.normals[idx], elements.areas[idx]]))
+    if faces_occlude:
+        # the triangles occlude: centroid, unit normal, area; the light on a side is
+        # the mean of its corners'
+        faces = elements.faces
+        corner = elements.positions[faces]
+        cross = np.cross(corner[:, 1] - corner[:, 0], corner[:, 2] - corner[:, 0])
+        length = np.linalg.norm(cross, axis=1)
+        ok = np.flatnonzero(length > 0)
+        faces = faces[ok]
+        occ = np.column_stack([corner[ok].mean(axis=1), cross[ok] / length[ok][:, None], 0.5 * length[ok]])
+        occ_own = np.full(len(ok), -1, dtype=np.int64)
+    else:
+        occ = np.column_stack([elements.positions[idx], elements.normals[idx], elements.areas[idx]])
+        occ_own = idx
+    occ = np.ascontiguousarray(occ)
     rows = np.column_stack([patches.centres, patches.normals, patches.areas, patches.radiance, patches.group])
     rows = np.ascontiguousarray(rows, dtype=np.float64)
     lit = first
     blocked = np.empty((n, n_groups))
     for _ in range(passes):
-        u = first[:, idx].sum(axis=-1)
-        e = np.maximum(lit[:, idx], 0.0).sum(axis=-1)
-        vis = np.where(u > 0.0, np.minimum(e / np.where(u > 0.0, u, 1.0), 1.0), 0.0)
-        vis = np.ascontiguousarray(vis.transpose(1, 0, 2))  # (k, side, group)
+        u = first.sum(axis=-1)
+        e = np.maximum(lit, 0.0).sum(axis=-1)
+        vis = np.where(u > 0.0, np.minimum(e / np.where(u > 0.0, u, 1.0), 1.0), 0.0)  # (side, n, group)
         if emitting is not None:
-            vis[emitting[idx], :, n_groups - 1] = 0.0
+            vis[:, emitting, n_groups - 1] = 0.0
+        if faces_occlude:
+            vis = vis[:, faces].mean(axis=2)
+        else:
+            vis = vis[:, idx]
+        vis = np.ascontiguousarray(vis.transpose(1, 0, 2))  # (k, side, group)
         lit = np.empty_like(first)
         for side, (pts, nrm) in enumerate(((front_p, front_n), (back_p, back_n))):
-            _kls.aimed_shadow(pts, nrm, occ, idx, vis, rows, blocked)
+            _kls.aimed_shadow(pts, nrm, occ, occ_own, vis, rows, blocked)
             lit[side] = first[side] * (1.0 - blocked)[:, :, None]
         progress.advance(1)
     low = np.any(lit[0] < 0.0, axis=(1, 2)) if n else np.zeros(0, dtype=bool)
