@@ -106,6 +106,23 @@ def aimed_shadow(points, normals, occ, own, vis, patches, out):
                 continue
             w_q[q], a_q[q] = _cap(d2, patches[q, Q_A] * cq)
             c_q[q] = cos_r * (patches[q, Q_L] + patches[q, Q_L + 1] + patches[q, Q_L + 2])
+        # the cone holding every patch seen, and the farthest one: occluders outside skip
+        ax, ay, az, far2 = 0.0, 0.0, 0.0, 0.0
+        for q in range(n_patches):
+            if w_q[q] > 0.0:
+                ax += ux_q[q]
+                ay += uy_q[q]
+                az += uz_q[q]
+                far2 = max(far2, d2_q[q])
+        norm = math.sqrt(ax * ax + ay * ay + az * az)
+        if not norm > 0.0:
+            continue
+        ax, ay, az = ax / norm, ay / norm, az / norm
+        spread = 0.0
+        for q in range(n_patches):
+            if w_q[q] > 0.0:
+                cos_q = min(1.0, max(-1.0, ax * ux_q[q] + ay * uy_q[q] + az * uz_q[q]))
+                spread = max(spread, math.acos(cos_q) + a_q[q])
         for j in range(k):
             if own[j] == i:
                 continue
@@ -116,11 +133,15 @@ def aimed_shadow(points, normals, occ, own, vis, patches, out):
                 continue
             if nx * dx + ny * dy + nz * dz <= 0.0:
                 continue
+            if r2 >= far2:
+                continue
             r = math.sqrt(r2)
             ux, uy, uz = dx / r, dy / r, dz / r
             md = occ[j, O_M] * ux + occ[j, O_M + 1] * uy + occ[j, O_M + 2] * uz
             side = 0 if md > 0.0 else 1
             w_j, a_j = _cap(r2, a * abs(md))
+            if math.acos(min(1.0, max(-1.0, ax * ux + ay * uy + az * uz))) >= spread + a_j:
+                continue
             for q in range(n_patches):
                 if w_q[q] <= 0.0 or d2_q[q] <= r2:
                     continue

@@ -381,7 +381,8 @@ def _aimed(
             vis = vis[:, idx]
         vis = np.ascontiguousarray(vis.transpose(1, 0, 2))  # (k, side, group)
         lit = np.empty_like(first)
-        for side, (pts, nrm) in enumerate(((front_p, front_n), (back_p, back_n))):
+        last = _ == passes - 1  # the last pass lights the front sides alone: they are the output
+        for side, (pts, nrm) in enumerate(((front_p, front_n),) if last else ((front_p, front_n), (back_p, back_n))):
             _kls.aimed_shadow(pts, nrm, occ, occ_own, vis, rows, blocked)
             lit[side] = first[side] * (1.0 - blocked)[:, :, None]
         progress.advance(1)
