@@ -12,6 +12,7 @@ import pytest
 
 from aobake.cli import main
 from aobake.errors import InputError
+from aobake.ground import Ground
 from aobake.io import load_mesh, read_bake
 from aobake.io.lights import read_shading
 from aobake.mesh import surface_from_arrays
@@ -131,3 +132,33 @@ def test_large_meshes_are_refused_with_one_line():
     assert s.n_vertices > MAX_VERTICES
     with pytest.raises(InputError, match="at most 20,000"):
         _lit(s, [Light.make("distant", "sun", (1.0, 1.0, 1.0), direction=(0.0, 0.0, 1.0))])
+
+
+def test_dome_is_the_disk_ao_times_pi_l():
+    """A dome gives pi L (1 - A), A the disk method's cosine occlusion: pi L on an open
+    plane, and under the box's ceiling as much less as the AO says."""
+    s = _grid()
+    dome = Light.make("dome", "sky", (0.5, 1.0, 2.0))
+    r = _lit(s, [dome], bounces=0)
+    np.testing.assert_allclose(r.direct, np.tile(math.pi * np.array([0.5, 1.0, 2.0]), (s.n_vertices, 1)), rtol=1e-12)
+    box = load_mesh(CORNELL)
+    r = _lit(box, [dome], bounces=0)
+    from aobake.methods.bunnell import bunnell_ao
+
+    ao = bunnell_ao(box, measure="cosine")
+    np.testing.assert_allclose(r.direct[:, 1], math.pi * ao, rtol=1e-12)
+    assert ao.min() < 0.5 < ao.max()
+
+
+def test_ground_occludes_the_shadow_rays():
+    """A wall facing +x standing on z = 1 and a point light in front of it, below a
+    ground plane at z = 0.8: no light reaches; without the plane, I cos / d^2."""
+    pos, faces = ground_grid(1.0, 4)
+    wall = np.column_stack([np.zeros(len(pos)), pos[:, 0], pos[:, 1] + 2.0])  # x = 0, z in [1, 3]
+    s = surface_from_arrays(wall, faces, np.tile([1.0, 0.0, 0.0], (len(pos), 1)))
+    lamp = Light.make("point", "lamp", (4.0, 4.0, 4.0), position=(1.0, 0.0, 0.5))
+    r = _lit(s, [lamp], ground=Ground(2, 0.8))
+    assert np.all(r.direct == 0) and r.n_shadow_rays == s.n_vertices
+    r = _lit(s, [lamp])
+    d = np.array([1.0, 0.0, 0.5]) - s.positions
+    np.testing.assert_allclose(r.direct[:, 0], 4.0 * d[:, 0] / np.linalg.norm(d, axis=1) ** 3, rtol=1e-12)
