@@ -250,4 +250,5 @@ def custom_data(job: LightJob, options: dict, method: str) -> dict:
 def summary(job: LightJob, totals: LightTotals) -> str:
     """The light's part of the bake's summary line (its rays are in the bake's total)."""
     rays = totals.shadow_rays + totals.path_rays
-    return job.plan.summary() + f" ({rays / 1e6:.3f} M of the rays for light, {totals.seconds:.2f} s)"
+    cost = f"{rays / 1e6:.3f} M of the rays" if rays else "no rays"
+    return job.plan.summary() + f" ({cost} for light, {totals.seconds:.2f} s)"

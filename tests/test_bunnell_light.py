@@ -162,3 +162,11 @@ def test_ground_occludes_the_shadow_rays():
     r = _lit(s, [lamp])
     d = np.array([1.0, 0.0, 0.5]) - s.positions
     np.testing.assert_allclose(r.direct[:, 0], 4.0 * d[:, 0] / np.linalg.norm(d, axis=1) ** 3, rtol=1e-12)
+
+
+def test_a_distant_light_with_an_angle_is_taken_along_its_axis():
+    s = _grid()
+    sun = Light.make("distant", "sun", (2.0, 2.0, 2.0), direction=(0.0, 0.0, 1.0), angle=0.2)
+    r = _lit(s, [sun])
+    np.testing.assert_allclose(r.direct, 2.0, rtol=1e-12)
+    assert r.n_shadow_rays == s.n_vertices

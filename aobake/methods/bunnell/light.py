@@ -470,16 +470,15 @@ def _emitting_triangles(elements: DiskElements, shading: Shading, light_disks: i
 
 
 def _exact_direct(surface: Surface, lights, options: BunnellOptions, ground: Ground | None):
-    """Direct irradiance (n, 3) of the point, spot and sharp distant lights by one shadow
-    ray per light and vertex in reach (the reference's kernels and contact-safe origins),
+    """Direct irradiance (n, 3) of the point, spot and distant lights (one with an angle
+    taken along its axis) by one shadow ray per light and vertex in reach (the reference's kernels and contact-safe origins),
     per-light :class:`LightStats`, the contacts and the rays cast."""
     n = surface.n_vertices
     n_lights = len(lights)
     out = np.zeros((n, 3))
-    exact = np.array(
-        [not light.is_black and (light.kind in ("point", "spot") or (light.kind == "distant" and light.angle == 0)) for light in lights],
-        dtype=bool,
-    )
+    # a distant light with an angle: its axis alone (E_perp cos, exact for a sharp one)
+    lights = tuple(replace(light, angle=0.0) if light.kind == "distant" else light for light in lights)
+    exact = np.array([not light.is_black and light.kind in ("point", "spot", "distant") for light in lights], dtype=bool)
     tracer = tracer_for(surface.positions, surface.faces)
     points = np.ascontiguousarray(tracer.local)
     normals = np.ascontiguousarray(surface.normals, dtype=np.float64)
