@@ -6,9 +6,9 @@ beside the reference method at its defaults.
     PYTHONPATH=. python bench/bench_bunnell_light.py [--ref-samples 4096] [--ref-paths 16384]
 
 Goal: relative RMSE <= 0.08 at the defaults (aimed, two shadow passes, one bounce).
-"published": every shadow pass as the GPU Gems 2 chapter's (isotropic); "aimed": the
-emitted light's passes aimed at the lights, the vertex disks or the triangles occluding
-(the bounced light's passes stay published).
+"published": every shadow pass as the GPU Gems 2 chapter's (isotropic), the vertex disks
+occluding; "aimed": the emitted light's passes aimed at the lights (the bounced light's
+passes as published), the vertex disks or the triangles occluding in all of them.
 docs/bunnell-light.md records runs.
 """
 
@@ -55,7 +55,7 @@ def main():
         e_ref = ref.irradiance[:scored]
         print(f"{name}: embree defaults rel. RMSE {rel_rmse(emb.irradiance[:scored], e_ref):.4f} in {t_emb:.3f} s "
               f"(reference {t_ref:.1f} s)")
-        schemes = {"published": {"aimed": False}, "aimed, disks occlude": {"faces_occlude": False}, "aimed, faces occlude": {}}
+        schemes = {"published": {"aimed": False, "faces_occlude": False}, "aimed, disks occlude": {"faces_occlude": False}, "aimed, faces occlude": {}}
         for what, knobs in schemes.items():
             for disks in args.disks.split(","):
                 for passes in args.passes.split(","):

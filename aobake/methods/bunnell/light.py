@@ -144,7 +144,7 @@ def disk_light(
         light, the published scheme (each disk blocks the light falling on its far side
         from every direction alike).
     faces_occlude : bool
-        In the aimed passes the triangles occlude (False: the vertex disks).
+        The triangles occlude (False: the vertex disks, as published).
     ground : aobake.ground.Ground, optional
         Occludes the shadow rays and the dome; its reflected light is not modelled.
 
@@ -194,7 +194,7 @@ def _disk_light(
             emitting = _emitting_vertices(surface, shading)
             lit, low = _aimed(elements, emitters, patches, shadow_passes, progress, emitting, faces_occlude)
         else:
-            lit, low = _shadowed(elements, emitters, None, shadow_passes, progress)
+            lit, low = _shadowed(elements, emitters, None, shadow_passes, progress, faces_occlude)
         direct = direct + lit
         negative |= low
     else:
@@ -207,7 +207,7 @@ def _disk_light(
         radiance = albedo * last / math.pi
         if not np.any(radiance > 0):
             break
-        last, low = _shadowed(elements, None, radiance, shadow_passes, progress)
+        last, low = _shadowed(elements, None, radiance, shadow_passes, progress, faces_occlude)
         indirect += last
         negative |= low
     progress.finish()
@@ -234,10 +234,13 @@ def _gather(points, normals, centres, disk_normals, areas, radiance, own) -> np.
     return transfer(points, normals, centres, disk_normals, areas, radiance, own)
 
 
-def _shadowed(elements: DiskElements, emitters: EmitterDisks | None, radiance, passes: int, progress) -> tuple:
+def _shadowed(
+    elements: DiskElements, emitters: EmitterDisks | None, radiance, passes: int, progress, faces_occlude: bool = True
+) -> tuple:  # fmt: skip
     """Irradiance at the vertices (front side) from ``emitters`` (or, ``radiance`` (n, 3):
-    the vertices' own disks reflecting), shadowed by the vertex disks in ``passes``
-    passes; and a bool mask of the vertices it took below zero (set to 0).
+    the vertices' own disks reflecting), shadowed by the triangles (``faces_occlude``;
+    else the vertex disks, as published) in ``passes`` passes; and a bool mask of the
+    vertices it took below zero (set to 0).
 
     Pass 0 distributes the light unshadowed to both sides of every vertex. Pass k
     subtracts, at each receiver, ``G E_{k-1}`` of every vertex disk (two-sided: an
@@ -255,13 +258,23 @@ def _shadowed(elements: DiskElements, emitters: EmitterDisks | None, radiance, p
     first_b = _gather(back_p, back_n, *src)
     progress.advance(1)
     e_f, e_b = first_f, first_b
-    centres = np.concatenate([elements.positions[idx]] * 2)
-    normals = np.concatenate([elements.normals[idx], -elements.normals[idx]])
-    areas = np.concatenate([elements.areas[idx]] * 2)
-    own = np.concatenate([idx, idx])
+    if faces_occlude:
+        faces, occ = _face_occluders(elements)
+        centres = np.concatenate([occ[:, :3]] * 2)
+        normals = np.concatenate([occ[:, 3:6], -occ[:, 3:6]])
+        areas = np.concatenate([occ[:, 6]] * 2)
+        own = np.full(2 * len(faces), -1, dtype=np.int64)
+    else:
+        centres = np.concatenate([elements.positions[idx]] * 2)
+        normals = np.concatenate([elements.normals[idx], -elements.normals[idx]])
+        areas = np.concatenate([elements.areas[idx]] * 2)
+        own = np.concatenate([idx, idx])
     for _ in range(passes):
         # a receiver in front of disk j is shadowed from the light on j's back, and v.v.
-        weight = np.concatenate([np.maximum(e_b[idx], 0.0), np.maximum(e_f[idx], 0.0)]) / math.pi
+        if faces_occlude:
+            weight = np.concatenate([np.maximum(e_b, 0.0)[faces].mean(axis=1), np.maximum(e_f, 0.0)[faces].mean(axis=1)]) / math.pi
+        else:
+            weight = np.concatenate([np.maximum(e_b[idx], 0.0), np.maximum(e_f[idx], 0.0)]) / math.pi
         e_f = first_f - _gather(front_p, front_n, centres, normals, areas, weight, own)
         e_b = first_b - _gather(back_p, back_n, centres, normals, areas, weight, own)
         progress.advance(1)
@@ -316,6 +329,17 @@ def _emitting_vertices(surface: Surface, shading: Shading):
     return out
 
 
+def _face_occluders(elements: DiskElements):
+    """(faces (m', 3), rows (m', 7)): the triangles of nonzero area as occluders, each
+    row its centroid, unit normal and area (the light on a side: its corners' mean)."""
+    corner = elements.positions[elements.faces]
+    cross = np.cross(corner[:, 1] - corner[:, 0], corner[:, 2] - corner[:, 0])
+    length = np.linalg.norm(cross, axis=1)
+    ok = np.flatnonzero(length > 0)
+    rows = np.column_stack([corner[ok].mean(axis=1), cross[ok] / length[ok][:, None], 0.5 * length[ok]])
+    return elements.faces[ok], np.ascontiguousarray(rows)
+
+
 def _sides(elements: DiskElements):
     """Receivers on both sides of every vertex: (front points, normals, back points, normals)."""
     lift = NEAR_OFFSET_REL * np.sqrt(elements.areas)[:, None] * elements.normals
@@ -351,16 +375,8 @@ def _aimed(
         first[1, :, g] = _gather(back_p, back_n, *src)
     progress.advance(1)
     if faces_occlude:
-        # the triangles occlude: centroid, unit normal, area; the light on a side is
-        # the mean of its corners'
-        faces = elements.faces
-        corner = elements.positions[faces]
-        cross = np.cross(corner[:, 1] - corner[:, 0], corner[:, 2] - corner[:, 0])
-        length = np.linalg.norm(cross, axis=1)
-        ok = np.flatnonzero(length > 0)
-        faces = faces[ok]
-        occ = np.column_stack([corner[ok].mean(axis=1), cross[ok] / length[ok][:, None], 0.5 * length[ok]])
-        occ_own = np.full(len(ok), -1, dtype=np.int64)
+        faces, occ = _face_occluders(elements)
+        occ_own = np.full(len(faces), -1, dtype=np.int64)
     else:
         occ = np.column_stack([elements.positions[idx], elements.normals[idx], elements.areas[idx]])
         occ_own = idx
