@@ -48,6 +48,30 @@ REACH_OK, REACH_BEHIND, REACH_CONE, REACH_RANGE, REACH_NONE = range(5)
 _TWO_PI = 2.0 * math.pi
 
 
+def light_table(lights, center: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(kinds (L,) int64, params (L, N_PARAMS) float64) of ``lights`` in the frame
+    recentred on ``center`` (``lights``: :class:`aobake.shading.Light`s; a plain
+    numpy function, the table the kernels here read)."""
+    kinds = np.array([KIND_CODES[light.kind] for light in lights], dtype=np.int64)
+    params = np.zeros((len(lights), N_PARAMS))
+    for i, light in enumerate(lights):
+        row = params[i]
+        row[P_VALUE : P_VALUE + 3] = light.value
+        row[P_POS : P_POS + 3] = light.position - center
+        row[P_DIR : P_DIR + 3] = light.direction
+        row[P_U : P_U + 3] = light.u
+        row[P_V : P_V + 3] = light.v
+        row[P_NORMAL : P_NORMAL + 3] = light.normal
+        row[P_RADIUS] = light.radius
+        row[P_COS_HALF] = math.cos(0.5 * light.angle)
+        row[P_COS_INNER] = math.cos(light.cone_inner)
+        row[P_COS_OUTER] = math.cos(light.cone_outer)
+        row[P_RANGE] = light.range
+        row[P_SHADOW] = 1.0 if light.shadow else 0.0
+        row[P_AREA] = light.area
+    return kinds, params
+
+
 @njit(cache=True, error_model="numpy", inline="always")
 def _dot(ax, ay, az, bx, by, bz):
     return ax * bx + ay * by + az * bz
