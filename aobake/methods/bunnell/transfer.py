@@ -72,3 +72,122 @@ def unshadowed_irradiance(elements: DiskElements, radiance) -> np.ndarray:
         radiance[idx],
         idx,
     )
+
+
+# ---------------------------------------------------------------------------------------
+# the same transfer through the cluster tree, with a prepare / gather split for re-lighting
+
+# Default opening parameter of the tree transfer: a cluster is used whole only when every
+# receiver of a bucket is at d^2 >= theta max(A, pi b^2) (1 + OPEN_COHERENCE (1 - c)) from
+# its centre (as the AO's opening). Measured in docs/bunnell-light.md.
+DEFAULT_TRANSFER_THETA = 4.0
+# Buckets are dealt cyclically to this many parallel chunks (any fixed number: the result
+# does not depend on it, nor on the thread count).
+TRANSFER_CHUNKS = 64
+
+
+class TransferScene:
+    """A scene prepared for repeated transfers (:func:`prepare_transfer`): the tree, the
+    disks in tree order, the nodes' geometry and the receivers' buckets are kept; each
+    :meth:`gather` only sums the new radiance up the tree and walks it.
+    """
+
+    def __init__(self, elements: DiskElements, tree, theta: float):
+        from ...constants import OPEN_COHERENCE
+        from ...kernels import transfertree as _kt2
+        from .passes import receiver_buckets
+        from .tree import node_coherence, refit_tree
+
+        self.n_vertices = elements.n_vertices
+        self.theta = float(theta)
+        self._points = np.ascontiguousarray(elements.points, dtype=np.float64)
+        self._normals = np.ascontiguousarray(elements.normals, dtype=np.float64)
+        self.tree = tree
+        if tree is None:
+            return
+        tree = refit_tree(tree, elements.positions, elements.areas)  # geometry of these disks
+        self.tree = tree
+        order = tree.order
+        self._order = order
+        self._e_pos = np.ascontiguousarray(elements.positions[order])
+        self._e_nrm = np.ascontiguousarray(elements.normals[order])
+        self._e_area = np.ascontiguousarray(elements.areas[order])
+        g = tree.geometry
+        b = g[:, 3]
+        size = np.maximum(g[:, 4], math.pi * b**2)
+        size = size * (1.0 + OPEN_COHERENCE * (1.0 - node_coherence(tree, elements.normals, elements.areas)))
+        with np.errstate(invalid="ignore", over="ignore"):
+            open_d2 = np.maximum(self.theta * size, b**2)  # never inside the node's sphere
+        geometry = np.zeros((tree.n_nodes, _kt2.GEOMETRY_COLS))
+        geometry[:, _kt2.G_X : _kt2.G_Z + 1] = g[:, :3]
+        geometry[:, _kt2.G_OPEN_D2] = np.where(np.isnan(open_d2), np.inf, open_d2)
+        _kt2.node_spread(self._e_nrm, self._e_area, tree.skip, tree.start, tree.stop, geometry)
+        self._geometry = geometry
+        self._recv_order, self._bucket_start = receiver_buckets(elements, tree)
+        self._light = np.zeros((tree.n_nodes, _kt2.LIGHT_COLS))
+
+    def gather(self, radiance) -> np.ndarray:
+        """(n, 3) irradiance at every vertex from every other vertex's disk, unshadowed
+        (:func:`unshadowed_irradiance` through the tree).
+
+        Parameters
+        ----------
+        radiance : (n, 3) float64 >= 0
+            Outgoing radiance of each vertex.
+        """
+        from ...kernels import transfertree as _kt2
+
+        radiance = np.asarray(radiance, dtype=np.float64)
+        if radiance.shape != (self.n_vertices, 3):
+            raise ValueError(f"radiance must be ({self.n_vertices}, 3), got {radiance.shape}")
+        if not np.all(np.isfinite(radiance)) or np.any(radiance < 0.0):
+            raise ValueError("radiance must be finite and >= 0")
+        out = np.zeros((self.n_vertices, 3))
+        if self.tree is None:
+            return out
+        tree = self.tree
+        e_rad = np.ascontiguousarray(radiance[self._order])
+        light = self._light
+        _kt2.node_light(self._e_nrm, self._e_area, e_rad, tree.skip, tree.start, tree.stop, light)
+        n_buckets = self._bucket_start.shape[0] - 1
+        _kt2.gather_tree(
+            self._points, self._normals, self._recv_order, self._bucket_start,
+            min(TRANSFER_CHUNKS, n_buckets), tree.skip, tree.start, tree.stop, self._geometry,
+            light, self._e_pos, self._e_nrm, self._e_area, e_rad, self._order, out,
+        )  # fmt: skip
+        return out
+
+
+def prepare_transfer(elements: DiskElements, *, theta: float = DEFAULT_TRANSFER_THETA, tree=None) -> TransferScene:
+    """Everything of the tree transfer that does not depend on the radiance.
+
+    Parameters
+    ----------
+    elements : DiskElements
+    theta : float > 0, optional
+        Opening parameter (larger = slower, closer to the brute-force sum; ``inf`` opens
+        every cluster and gives the brute-force sum).
+    tree : ClusterTree, optional
+        A tree over ``elements.emitter_index`` (``aobake.methods.bunnell.passes.build_tree``,
+        or an earlier one for moved vertices: it is refitted); default: built here.
+    """
+    from .passes import build_tree
+
+    theta = float(theta)
+    if not theta > 0.0:
+        raise ValueError(f"theta must be > 0, got {theta!r}")
+    if elements.n_emitters == 0:
+        return TransferScene(elements, None, theta)
+    if tree is None:
+        tree = build_tree(elements)
+    elif not np.array_equal(np.sort(tree.order), elements.emitter_index):
+        raise ValueError("tree: built over other disks than these elements' emitters")
+    return TransferScene(elements, tree, theta)
+
+
+def tree_transfer(elements: DiskElements, radiance, *, theta: float = DEFAULT_TRANSFER_THETA, tree=None) -> np.ndarray:
+    """(n, 3) :func:`unshadowed_irradiance` through the cluster tree: clusters far enough for
+    their size (``theta``) send their summed RGB power from their centre, nearer disks
+    their exact terms. One call of :func:`prepare_transfer` and :meth:`TransferScene.gather`.
+    """
+    return prepare_transfer(elements, theta=theta, tree=tree).gather(radiance)
