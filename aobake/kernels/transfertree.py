@@ -22,7 +22,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from aobake.constants import COINCIDENT_REL
+from aobake.constants import COINCIDENT_REL, FASTMATH
 
 from .hierarchy import spread_factor
 
@@ -111,25 +111,76 @@ def node_light(normals, areas, radiance, skip, start, stop, light):
                 light[q, c] = light[left, c] + light[right, c]
 
 
-@njit(cache=True, error_model="numpy", inline="always")
-def far_power(geometry, light, q, ux, uy, uz, ch):
-    """Power of node q's disks toward unit direction u (node - receiver), channel ch:
-    ``max((P a + s) / 2, s, 0)`` with ``s = -W.u`` and ``a = sqrt(u^T (kappa^2 T / A) u)``
-    (``sum A L max(-m.u, 0) = (sum A L |m.u| + s) / 2`` with the mean ``|m.u|`` estimated
-    by a; exact for a flat node and for uniform radiance on a flat node, as the AO's far
-    term)."""
-    s = -(light[q, L_W + 3 * ch] * ux + light[q, L_W + 3 * ch + 1] * uy + light[q, L_W + 3 * ch + 2] * uz)
-    quad = (
-        geometry[q, G_TXX] * ux * ux
-        + geometry[q, G_TYY] * uy * uy
-        + geometry[q, G_TZZ] * uz * uz
-        + 2.0 * (geometry[q, G_TXY] * ux * uy + geometry[q, G_TXZ] * ux * uz + geometry[q, G_TYZ] * uy * uz)
-    )
-    a = np.sqrt(max(quad, 0.0))
-    return max(0.5 * (light[q, L_P + ch] * a + s), s, 0.0)
+# Rows of a bucket's list buffers (float64, one row per quantity so each receiver's sums
+# are contiguous, branch-free loops that LLVM vectorises): near disks (centre, normal,
+# area, radiance; the disk's vertex in a separate int64 array) and far nodes (centre,
+# power, W per channel, kappa^2 T / A).
+B_X, B_Y, B_Z, B_MX, B_MY, B_MZ, B_A, B_L = 0, 1, 2, 3, 4, 5, 6, 7
+NEAR_ROWS = 10
+F_X, F_Y, F_Z, F_P, F_W, F_T = 0, 1, 2, 3, 6, 15
+FAR_ROWS = 21
 
 
-@njit(cache=True, error_model="numpy", parallel=True)
+@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+def near_sums(buf, own, n_near, i, px, py, pz, nx, ny, nz):
+    """RGB sums of the exact disk terms of ``buf[:, :n_near]`` at receiver i (as
+    ``transfer.gather``: nothing from its own disk, coincident disks or either side
+    facing away)."""
+    s0 = 0.0
+    s1 = 0.0
+    s2 = 0.0
+    for t in range(n_near):
+        dx = buf[B_X, t] - px
+        dy = buf[B_Y, t] - py
+        dz = buf[B_Z, t] - pz
+        r2 = dx * dx + dy * dy + dz * dz
+        a = buf[B_A, t]
+        cr = max(nx * dx + ny * dy + nz * dz, 0.0)
+        ce = max(-(buf[B_MX, t] * dx + buf[B_MY, t] * dy + buf[B_MZ, t] * dz), 0.0)
+        w = np.pi * a * ce * cr / (r2 * (np.pi * r2 + a))
+        w = w if (r2 > COINCIDENT_REL * a and own[t] != i) else 0.0
+        s0 += w * buf[B_L, t]
+        s1 += w * buf[B_L + 1, t]
+        s2 += w * buf[B_L + 2, t]
+    return s0, s1, s2
+
+
+@njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
+def far_sums(buf, n_far, px, py, pz, nx, ny, nz):
+    """RGB sums of the far nodes ``buf[:, :n_far]`` at a receiver: ``F cos_r / d^2`` with
+    F the node's power toward the receiver, ``max((P a + s) / 2, s, 0)``, ``s = -W.u``,
+    ``a = sqrt(u^T (kappa^2 T / A) u)`` (the mean ``|m.u|``; exact for a flat node, as the
+    AO's far term)."""
+    s0 = 0.0
+    s1 = 0.0
+    s2 = 0.0
+    for t in range(n_far):
+        dx = buf[F_X, t] - px
+        dy = buf[F_Y, t] - py
+        dz = buf[F_Z, t] - pz
+        d2 = dx * dx + dy * dy + dz * dz
+        inv = 1.0 / np.sqrt(d2)
+        ux = dx * inv
+        uy = dy * inv
+        uz = dz * inv
+        g = max(nx * ux + ny * uy + nz * uz, 0.0) / d2
+        quad = (
+            buf[F_T, t] * ux * ux
+            + buf[F_T + 1, t] * uy * uy
+            + buf[F_T + 2, t] * uz * uz
+            + 2.0 * (buf[F_T + 3, t] * ux * uy + buf[F_T + 4, t] * ux * uz + buf[F_T + 5, t] * uy * uz)
+        )
+        a = np.sqrt(max(quad, 0.0))
+        p0 = -(buf[F_W, t] * ux + buf[F_W + 1, t] * uy + buf[F_W + 2, t] * uz)
+        p1 = -(buf[F_W + 3, t] * ux + buf[F_W + 4, t] * uy + buf[F_W + 5, t] * uz)
+        p2 = -(buf[F_W + 6, t] * ux + buf[F_W + 7, t] * uy + buf[F_W + 8, t] * uz)
+        s0 += g * max(0.5 * (buf[F_P, t] * a + p0), p0, 0.0)
+        s1 += g * max(0.5 * (buf[F_P + 1, t] * a + p1), p1, 0.0)
+        s2 += g * max(0.5 * (buf[F_P + 2, t] * a + p2), p2, 0.0)
+    return s0, s1, s2
+
+
+@njit(cache=True, fastmath=FASTMATH, error_model="numpy", parallel=True)
 def gather_tree(points, normals, recv_order, bucket_start, n_chunks, skip, start, stop, geometry,
                 light, e_pos, e_nrm, e_area, e_rad, e_own, out):
     """``out[i]``: the irradiance of :func:`aobake.kernels.transfer.gather` at every receiver,
@@ -137,13 +188,14 @@ def gather_tree(points, normals, recv_order, bucket_start, n_chunks, skip, start
 
     Receivers walk the tree by buckets (``recv_order[bucket_start[b]:bucket_start[b + 1]]``,
     compact groups): a node whose light is zero is skipped; a node is used whole when the
-    bucket's bounding sphere is farther than ``sqrt(G_OPEN_D2)`` from its centre (term
-    ``F cos_r / d^2`` with F from :func:`far_power`: the disk term ``pi L A cos_e cos_r /
-    (pi r^2 + A)`` of many disks without the near-field regularisation); a leaf that is
-    not far gives its disks' exact terms (skips as ``gather``: own disk ``e_own[t] == i``,
-    coincident, either side facing away). Each receiver sums its bucket's far nodes then
-    its near disks in tree order, so the result does not depend on the thread count;
-    ``n_chunks`` (fixed by the caller) groups buckets cyclically for the threads.
+    bucket's bounding sphere is farther than ``sqrt(G_OPEN_D2)`` from its centre
+    (:func:`far_sums`: the disk term ``pi L A cos_e cos_r / (pi r^2 + A)`` summed over its
+    disks, without the near-field regularisation); a leaf that is not far lists its lit
+    disks for their exact terms (:func:`near_sums`). Each receiver sums its bucket's lists
+    in a fixed order and the machine code is the same for any thread count, so the result
+    does not depend on it; ``n_chunks`` (fixed by the caller) deals buckets cyclically to
+    the threads. fastmath (aobake.constants.FASTMATH): the sums vectorise, so the terms
+    add in another order than the brute-force sum (rounding differences only).
 
     Parameters
     ----------
@@ -163,10 +215,12 @@ def gather_tree(points, normals, recv_order, bucket_start, n_chunks, skip, start
         Overwritten.
     """
     m = skip.shape[0]
+    k = e_own.shape[0]
     nb = bucket_start.shape[0] - 1
     for chunk in prange(n_chunks):
-        far = np.empty(m, dtype=np.int64)
-        near = np.empty(m, dtype=np.int64)
+        near_buf = np.empty((NEAR_ROWS, k))
+        near_own = np.empty(k, dtype=np.int64)
+        far_buf = np.empty((FAR_ROWS, m))
         for b in range(chunk, nb, n_chunks):
             lo = bucket_start[b]
             hi = bucket_start[b + 1]
@@ -199,12 +253,25 @@ def gather_tree(points, normals, recv_order, bucket_start, n_chunks, skip, start
                 dz = geometry[node, G_Z] - bz
                 dmin = np.sqrt(dx * dx + dy * dy + dz * dz) - rb
                 if dmin > 0.0 and dmin * dmin >= geometry[node, G_OPEN_D2]:
-                    far[n_far] = node
+                    for c in range(3):
+                        far_buf[F_X + c, n_far] = geometry[node, G_X + c]
+                    for c in range(LIGHT_COLS):
+                        far_buf[F_P + c, n_far] = light[node, c]
+                    for c in range(6):
+                        far_buf[F_T + c, n_far] = geometry[node, G_TXX + c]
                     n_far += 1
                     node = nxt
                 elif nxt == node + 1:
-                    near[n_near] = node
-                    n_near += 1
+                    for t in range(start[node], stop[node]):
+                        if e_rad[t, 0] <= 0.0 and e_rad[t, 1] <= 0.0 and e_rad[t, 2] <= 0.0:
+                            continue  # a dark disk adds nothing
+                        for c in range(3):
+                            near_buf[B_X + c, n_near] = e_pos[t, c]
+                            near_buf[B_MX + c, n_near] = e_nrm[t, c]
+                            near_buf[B_L + c, n_near] = e_rad[t, c]
+                        near_buf[B_A, n_near] = e_area[t]
+                        near_own[n_near] = e_own[t]
+                        n_near += 1
                     node = nxt
                 else:
                     node += 1
@@ -213,52 +280,16 @@ def gather_tree(points, normals, recv_order, bucket_start, n_chunks, skip, start
                 nx = normals[i, 0]
                 ny = normals[i, 1]
                 nz = normals[i, 2]
-                s0 = 0.0
-                s1 = 0.0
-                s2 = 0.0
-                if nx != 0.0 or ny != 0.0 or nz != 0.0:
-                    px = points[i, 0]
-                    py = points[i, 1]
-                    pz = points[i, 2]
-                    for f in range(n_far):
-                        q = far[f]
-                        dx = geometry[q, G_X] - px
-                        dy = geometry[q, G_Y] - py
-                        dz = geometry[q, G_Z] - pz
-                        nd = nx * dx + ny * dy + nz * dz
-                        if nd <= 0.0:
-                            continue
-                        d2 = dx * dx + dy * dy + dz * dz
-                        inv = 1.0 / np.sqrt(d2)
-                        ux = dx * inv
-                        uy = dy * inv
-                        uz = dz * inv
-                        g = nd * inv / d2  # cos_r / d^2
-                        s0 += g * far_power(geometry, light, q, ux, uy, uz, 0)
-                        s1 += g * far_power(geometry, light, q, ux, uy, uz, 1)
-                        s2 += g * far_power(geometry, light, q, ux, uy, uz, 2)
-                    for f in range(n_near):
-                        q = near[f]
-                        for t in range(start[q], stop[q]):
-                            if e_own[t] == i:
-                                continue
-                            dx = e_pos[t, 0] - px
-                            dy = e_pos[t, 1] - py
-                            dz = e_pos[t, 2] - pz
-                            r2 = dx * dx + dy * dy + dz * dz
-                            a = e_area[t]
-                            if r2 <= COINCIDENT_REL * a:
-                                continue
-                            cr = nx * dx + ny * dy + nz * dz
-                            if cr <= 0.0:
-                                continue
-                            ce = -(e_nrm[t, 0] * dx + e_nrm[t, 1] * dy + e_nrm[t, 2] * dz)
-                            if ce <= 0.0:
-                                continue
-                            w = np.pi * a * ce * cr / (r2 * (np.pi * r2 + a))
-                            s0 += w * e_rad[t, 0]
-                            s1 += w * e_rad[t, 1]
-                            s2 += w * e_rad[t, 2]
-                out[i, 0] = s0
-                out[i, 1] = s1
-                out[i, 2] = s2
+                if nx == 0.0 and ny == 0.0 and nz == 0.0:
+                    out[i, 0] = 0.0
+                    out[i, 1] = 0.0
+                    out[i, 2] = 0.0
+                    continue
+                px = points[i, 0]
+                py = points[i, 1]
+                pz = points[i, 2]
+                f0, f1, f2 = far_sums(far_buf, n_far, px, py, pz, nx, ny, nz)
+                n0, n1, n2 = near_sums(near_buf, near_own, n_near, i, px, py, pz, nx, ny, nz)
+                out[i, 0] = f0 + n0
+                out[i, 1] = f1 + n1
+                out[i, 2] = f2 + n2

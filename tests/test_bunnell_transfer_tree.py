@@ -1,0 +1,146 @@
+"""The disk transfer through the cluster tree (aobake.methods.bunnell.transfer.tree_transfer,
+prepare_transfer; kernels/transfertree.py) against the brute-force sum
+(unshadowed_irradiance): equal with every cluster opened, closer as theta grows, never
+negative, the same for any thread count, and a prepared scene re-lit by new radiance."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from aobake.methods.bunnell.elements import build_elements
+from aobake.methods.bunnell.passes import build_tree
+from aobake.methods.bunnell.transfer import (
+    DEFAULT_TRANSFER_THETA,
+    prepare_transfer,
+    tree_transfer,
+    unshadowed_irradiance,
+)
+from aobake.testing.scenes import sphere_on_plane, spheres_in_block
+
+
+def rel_rmse(a, b):
+    return float(np.sqrt(np.mean((a - b) ** 2)) / np.sqrt(np.mean(b**2)))
+
+
+def lit(elements, direction=(0.3, -0.5, 0.8), colour=(0.8, 0.5, 0.3)):
+    """Radiance of a diffuse surface under a distant light, unshadowed: ``max(n.l, 0) rho``
+    (half of every ball dark, the floor lit)."""
+    d = np.asarray(direction, dtype=np.float64)
+    return np.maximum(elements.normals @ (d / np.linalg.norm(d)), 0.0)[:, None] * np.asarray(colour)
+
+
+@pytest.fixture(scope="module")
+def block():
+    """Four balls on a floor, 2,329 vertices, lit from one side; its brute-force transfer."""
+    el = build_elements(spheres_in_block(2, 40))
+    radiance = lit(el)
+    return el, radiance, unshadowed_irradiance(el, radiance)
+
+
+def test_every_cluster_opened_is_the_brute_force_sum(block):
+    el, radiance, want = block
+    got = tree_transfer(el, radiance, theta=np.inf)
+    assert np.allclose(got, want, rtol=1e-12, atol=1e-15 * want.max())
+    # random radiance with dark vertices and a zero-normal vertex
+    surface = sphere_on_plane(1, 6)
+    normals = surface.normals.copy()
+    normals[5] = 0.0
+    el = build_elements(dataclasses.replace(surface, normals=normals))
+    radiance = np.random.default_rng(2).uniform(0, 1, (el.n_vertices, 3))
+    radiance[::3] = 0.0
+    want = unshadowed_irradiance(el, radiance)
+    got = tree_transfer(el, radiance, theta=np.inf)
+    assert np.allclose(got, want, rtol=1e-12, atol=1e-15 * want.max())
+    assert np.all(got[5] == 0) and np.count_nonzero(got[:, 0]) > el.n_vertices // 2
+
+
+def test_error_shrinks_as_theta_grows(block):
+    """Measured: relative RMSE 1.3e-2 / 6.0e-3 / 2.1e-3 / 3.7e-4 / 3.2e-5 at theta
+    1 / 2 / 4 / 8 / 16 on this scene."""
+    el, radiance, want = block
+    errors = [rel_rmse(tree_transfer(el, radiance, theta=t), want) for t in (1, 2, 4, 8, 16)]
+    assert all(b < a for a, b in zip(errors, errors[1:], strict=False)), errors
+    assert errors[0] < 0.03 and errors[-1] < 1e-4, errors
+    assert errors[0] > 1e-3  # the tree is used: theta 1 is not the exact sum
+    default = rel_rmse(tree_transfer(el, radiance), want)
+    assert default < 5e-3, default
+
+
+def test_no_negative_light_and_dark_gives_zero(block):
+    el, radiance, _ = block
+    rng = np.random.default_rng(5)
+    for theta in (0.5, DEFAULT_TRANSFER_THETA):
+        r = radiance * rng.uniform(0, 2, radiance.shape)
+        got = tree_transfer(el, r, theta=theta)
+        assert np.all(np.isfinite(got)) and np.all(got >= 0.0) and got.max() > 0
+    assert np.all(tree_transfer(el, np.zeros_like(radiance)) == 0.0)
+
+
+def test_prepared_scene_relit_equals_fresh_transfers(block):
+    el, radiance, _ = block
+    scene = prepare_transfer(el)
+    other = lit(el, direction=(-0.7, 0.2, 0.3), colour=(0.1, 0.9, 0.4))
+    first = scene.gather(radiance)
+    second = scene.gather(other)
+    assert np.array_equal(first, tree_transfer(el, radiance))
+    assert np.array_equal(second, tree_transfer(el, other))
+    assert not np.allclose(first, second)
+    assert np.array_equal(scene.gather(radiance), first)  # nothing left over from a call
+
+
+def test_refitted_tree_after_a_move():
+    """A tree built before the vertices moved is refitted by prepare_transfer: every
+    cluster opened it is still the brute-force sum, and at the default theta close to it."""
+    surface = sphere_on_plane(1, 8)
+    el = build_elements(surface)
+    tree = build_tree(el)
+    moved = surface.positions.copy()
+    moved[surface.positions[:, 2] > -0.99] += [0.4, 0.1, 0.3]  # the ball moves up and aside
+    el2 = build_elements(dataclasses.replace(surface, positions=moved))
+    radiance = lit(el2)
+    want = unshadowed_irradiance(el2, radiance)
+    assert np.allclose(tree_transfer(el2, radiance, theta=np.inf, tree=tree), want, rtol=1e-12, atol=1e-15 * want.max())
+    assert rel_rmse(tree_transfer(el2, radiance, tree=tree), want) < 0.01
+
+
+def test_same_result_for_any_thread_count(block):
+    import numba
+
+    el, radiance, _ = block
+    before = numba.get_num_threads()
+    try:
+        numba.set_num_threads(1)
+        one = tree_transfer(el, radiance, theta=2.0)
+        numba.set_num_threads(min(2, numba.config.NUMBA_NUM_THREADS))
+        two = tree_transfer(el, radiance, theta=2.0)
+    finally:
+        numba.set_num_threads(before)
+    assert np.array_equal(one, two) and np.count_nonzero(one) > 0
+
+
+def test_bad_input(block):
+    el, radiance, _ = block
+    scene = prepare_transfer(el)
+    with pytest.raises(ValueError, match="radiance"):
+        scene.gather(-radiance - 1)
+    with pytest.raises(ValueError, match="radiance"):
+        scene.gather(radiance[:-1])
+    bad = radiance.copy()
+    bad[0, 0] = np.nan
+    with pytest.raises(ValueError, match="radiance"):
+        scene.gather(bad)
+    with pytest.raises(ValueError, match="theta"):
+        prepare_transfer(el, theta=0.0)
+    other = build_elements(sphere_on_plane(1, 4))
+    with pytest.raises(ValueError, match="tree"):
+        prepare_transfer(el, tree=build_tree(other))
+
+
+def test_no_casting_disk_gives_zero():
+    el = build_elements(sphere_on_plane(1, 4))
+    none = dataclasses.replace(el, emitter_index=np.zeros(0, dtype=np.int64))
+    got = prepare_transfer(none).gather(np.ones((el.n_vertices, 3)))
+    assert got.shape == (el.n_vertices, 3) and np.all(got == 0)
