@@ -11,10 +11,12 @@ Per node ``q`` two float64 tables: the geometry (fixed while the disks do not mo
 the light (recomputed from the radiance on every call):
 
 - geometry: G_X..G_Z area-weighted centre, G_OPEN_D2 squared distance beyond which the node
-  is used whole, G_TXX..G_TYZ ``kappa^2 T / A`` with ``T = sum A m m^T`` (so
-  ``sqrt(u^T (kappa^2 T / A) u)`` estimates the mean ``|m.u|`` of the node's disks);
+  is used whole;
 - light: L_P + c the power ``P_c = sum A L_c`` of channel c, L_W + 3 c the vector
-  ``W_c = sum A L_c m``.
+  ``W_c = sum A L_c m``, L_T..L_T + 5 ``kappa^2 T / Y`` with ``T = sum A Y m m^T``,
+  ``Y = L_0 + L_1 + L_2`` and ``Y`` summed likewise (so ``sqrt(u^T (kappa^2 T / Y) u)``
+  estimates the power-weighted mean ``|m.u|`` of the node's disks; kappa:
+  ``hierarchy.spread_factor``).
 """
 
 from __future__ import annotations
@@ -25,62 +27,27 @@ from numba import njit, prange
 from aobake.constants import COINCIDENT_REL, FASTMATH
 
 from .hierarchy import spread_factor
+from .treewalk import B_RADIUS, behind
+from .treewalk import B_X as B_CX
+from .treewalk import B_Y as B_CY
+from .treewalk import B_Z as B_CZ
 
 G_X, G_Y, G_Z, G_OPEN_D2 = 0, 1, 2, 3
-G_TXX, G_TYY, G_TZZ, G_TXY, G_TXZ, G_TYZ = 4, 5, 6, 7, 8, 9
-GEOMETRY_COLS = 10
+GEOMETRY_COLS = 4
 L_P = 0
 L_W = 3
-LIGHT_COLS = 12
+L_T = 12
+LIGHT_COLS = 18
 
-
-@njit(cache=True, error_model="numpy")
-def node_spread(normals, areas, skip, start, stop, geometry):
-    """Write G_TXX..G_TYZ of every node: ``kappa^2 T / A`` (``hierarchy.spread_factor``),
-    bottom-up in reverse preorder, float64.
-
-    Parameters
-    ----------
-    normals : (k, 3) float64
-        Unit disk normals in tree order.
-    areas : (k,) float64
-        Disk areas in tree order (> 0).
-    skip, start, stop : (m,) int64
-    geometry : (m, GEOMETRY_COLS) float64
-    """
-    m = skip.shape[0]
-    mom = np.zeros((m, 7))
-    for q in range(m - 1, -1, -1):
-        if skip[q] == q + 1:
-            for t in range(start[q], stop[q]):
-                a = areas[t]
-                mx = normals[t, 0]
-                my = normals[t, 1]
-                mz = normals[t, 2]
-                mom[q, 0] += a
-                mom[q, 1] += a * mx * mx
-                mom[q, 2] += a * my * my
-                mom[q, 3] += a * mz * mz
-                mom[q, 4] += a * mx * my
-                mom[q, 5] += a * mx * mz
-                mom[q, 6] += a * my * mz
-        else:
-            left = q + 1
-            right = skip[left]
-            for c in range(7):
-                mom[q, c] = mom[left, c] + mom[right, c]
-    for q in range(m):
-        a = mom[q, 0]
-        kappa = spread_factor(a, mom[q, 1], mom[q, 2], mom[q, 3], mom[q, 4], mom[q, 5], mom[q, 6])
-        f = kappa * kappa / a
-        for c in range(6):
-            geometry[q, G_TXX + c] = f * mom[q, 1 + c]
+# Slack of the bucket-level test that a disk faces away from every receiver (relative to
+# the distances involved, normalised units): far above float64 rounding.
+FACING_SLACK = 1e-9
 
 
 @njit(cache=True, error_model="numpy")
 def node_light(normals, areas, radiance, skip, start, stop, light):
-    """Every node's light table from the disks' radiance: ``P_c = sum A L_c``,
-    ``W_c = sum A L_c m``, bottom-up in reverse preorder (O(k + m)), float64.
+    """Every node's light table from the disks' radiance (the module's L_* columns),
+    bottom-up in reverse preorder (O(k + m)), float64.
 
     Parameters
     ----------
@@ -98,28 +65,46 @@ def node_light(normals, areas, radiance, skip, start, stop, light):
             for c in range(LIGHT_COLS):
                 light[q, c] = 0.0
             for t in range(start[q], stop[q]):
+                mx = normals[t, 0]
+                my = normals[t, 1]
+                mz = normals[t, 2]
                 for ch in range(3):
                     p = areas[t] * radiance[t, ch]
                     light[q, L_P + ch] += p
-                    light[q, L_W + 3 * ch] += p * normals[t, 0]
-                    light[q, L_W + 3 * ch + 1] += p * normals[t, 1]
-                    light[q, L_W + 3 * ch + 2] += p * normals[t, 2]
+                    light[q, L_W + 3 * ch] += p * mx
+                    light[q, L_W + 3 * ch + 1] += p * my
+                    light[q, L_W + 3 * ch + 2] += p * mz
+                y = areas[t] * (radiance[t, 0] + radiance[t, 1] + radiance[t, 2])
+                light[q, L_T] += y * mx * mx
+                light[q, L_T + 1] += y * my * my
+                light[q, L_T + 2] += y * mz * mz
+                light[q, L_T + 3] += y * mx * my
+                light[q, L_T + 4] += y * mx * mz
+                light[q, L_T + 5] += y * my * mz
         else:
             left = q + 1
             right = skip[left]
             for c in range(LIGHT_COLS):
                 light[q, c] = light[left, c] + light[right, c]
+    for q in range(m):
+        y = light[q, L_P] + light[q, L_P + 1] + light[q, L_P + 2]
+        if y > 0.0:
+            kappa = spread_factor(y, light[q, L_T], light[q, L_T + 1], light[q, L_T + 2], light[q, L_T + 3],
+                                  light[q, L_T + 4], light[q, L_T + 5])
+            f = kappa * kappa / y
+            for c in range(6):
+                light[q, L_T + c] *= f
+
 
 
 # Rows of a bucket's list buffers (float64, one row per quantity so each receiver's sums
 # are contiguous, branch-free loops that LLVM vectorises): near disks (centre, normal,
 # area, radiance; the disk's vertex in a separate int64 array) and far nodes (centre,
-# power, W per channel, kappa^2 T / A).
+# the node's light row).
 B_X, B_Y, B_Z, B_MX, B_MY, B_MZ, B_A, B_L = 0, 1, 2, 3, 4, 5, 6, 7
 NEAR_ROWS = 10
 F_X, F_Y, F_Z, F_P, F_W, F_T = 0, 1, 2, 3, 6, 15
 FAR_ROWS = 21
-
 
 @njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
 def near_sums(buf, own, n_near, i, px, py, pz, nx, ny, nz):
@@ -149,8 +134,8 @@ def near_sums(buf, own, n_near, i, px, py, pz, nx, ny, nz):
 def far_sums(buf, n_far, px, py, pz, nx, ny, nz):
     """RGB sums of the far nodes ``buf[:, :n_far]`` at a receiver: ``F cos_r / d^2`` with
     F the node's power toward the receiver, ``max((P a + s) / 2, s, 0)``, ``s = -W.u``,
-    ``a = sqrt(u^T (kappa^2 T / A) u)`` (the mean ``|m.u|``; exact for a flat node, as the
-    AO's far term)."""
+    ``a = sqrt(u^T (kappa^2 T / Y) u)`` (the mean ``|m.u|``; exact for a flat node, as the
+    AO's far term: ``sum w |m.u| <= sqrt(sum w sum w (m.u)^2)``)."""
     s0 = 0.0
     s1 = 0.0
     s2 = 0.0
@@ -181,13 +166,15 @@ def far_sums(buf, n_far, px, py, pz, nx, ny, nz):
 
 
 @njit(cache=True, fastmath=FASTMATH, error_model="numpy", parallel=True)
-def gather_tree(points, normals, recv_order, bucket_start, n_chunks, skip, start, stop, geometry,
+def gather_tree(points, normals, recv_order, bucket_start, bounds, n_chunks, skip, start, stop, geometry,
                 light, e_pos, e_nrm, e_area, e_rad, e_own, out):
     """``out[i]``: the irradiance of :func:`aobake.kernels.transfer.gather` at every receiver,
     through the tree.
 
     Receivers walk the tree by buckets (``recv_order[bucket_start[b]:bucket_start[b + 1]]``,
-    compact groups): a node whose light is zero is skipped; a node is used whole when the
+    compact groups): a node whose light is zero is skipped, and so is a far node, or a
+    near disk, behind every receiver's tangent plane (``treewalk.behind``) or a near disk
+    facing away from the bucket's sphere (all exact: their terms are 0); a node is used whole when the
     bucket's bounding sphere is farther than ``sqrt(G_OPEN_D2)`` from its centre
     (:func:`far_sums`: the disk term ``pi L A cos_e cos_r / (pi r^2 + A)`` summed over its
     disks, without the near-field regularisation); a leaf that is not far lists its lit
@@ -202,6 +189,8 @@ def gather_tree(points, normals, recv_order, bucket_start, n_chunks, skip, start
     points, normals : (n, 3) float64
     recv_order : (n,) int64
     bucket_start : (nb + 1,) int64
+    bounds : (nb, treewalk.BOUND_COLS) float64
+        Each bucket's bounding sphere and normal cone (``treewalk.bucket_bounds``).
     n_chunks : int >= 1
     skip, start, stop : (m,) int64
     geometry : (m, GEOMETRY_COLS) float64
@@ -224,22 +213,11 @@ def gather_tree(points, normals, recv_order, bucket_start, n_chunks, skip, start
         for b in range(chunk, nb, n_chunks):
             lo = bucket_start[b]
             hi = bucket_start[b + 1]
-            bx = 0.0
-            by = 0.0
-            bz = 0.0
-            for s in range(lo, hi):
-                i = recv_order[s]
-                bx += points[i, 0]
-                by += points[i, 1]
-                bz += points[i, 2]
-            bx /= hi - lo
-            by /= hi - lo
-            bz /= hi - lo
-            rb = 0.0
-            for s in range(lo, hi):
-                i = recv_order[s]
-                rb = max(rb, np.sqrt((points[i, 0] - bx) ** 2 + (points[i, 1] - by) ** 2 + (points[i, 2] - bz) ** 2))
-            rb = rb * (1.0 + 1e-12) + 1e-12  # rounding: every receiver inside the sphere
+            bound = bounds[b]
+            bx = bound[B_CX]
+            by = bound[B_CY]
+            bz = bound[B_CZ]
+            rb = bound[B_RADIUS]
             n_far = 0
             n_near = 0
             node = 0
@@ -251,20 +229,30 @@ def gather_tree(points, normals, recv_order, bucket_start, n_chunks, skip, start
                 dx = geometry[node, G_X] - bx
                 dy = geometry[node, G_Y] - by
                 dz = geometry[node, G_Z] - bz
-                dmin = np.sqrt(dx * dx + dy * dy + dz * dz) - rb
+                dist = np.sqrt(dx * dx + dy * dy + dz * dz)
+                dmin = dist - rb
                 if dmin > 0.0 and dmin * dmin >= geometry[node, G_OPEN_D2]:
+                    if behind(bound, dx, dy, dz, dist):  # a zero term at every receiver
+                        node = nxt
+                        continue
                     for c in range(3):
                         far_buf[F_X + c, n_far] = geometry[node, G_X + c]
                     for c in range(LIGHT_COLS):
                         far_buf[F_P + c, n_far] = light[node, c]
-                    for c in range(6):
-                        far_buf[F_T + c, n_far] = geometry[node, G_TXX + c]
                     n_far += 1
                     node = nxt
                 elif nxt == node + 1:
                     for t in range(start[node], stop[node]):
                         if e_rad[t, 0] <= 0.0 and e_rad[t, 1] <= 0.0 and e_rad[t, 2] <= 0.0:
                             continue  # a dark disk adds nothing
+                        ex = e_pos[t, 0] - bx
+                        ey = e_pos[t, 1] - by
+                        ez = e_pos[t, 2] - bz
+                        e = np.sqrt(ex * ex + ey * ey + ez * ez)
+                        if behind(bound, ex, ey, ez, e):
+                            continue  # behind every receiver's tangent plane
+                        if e_nrm[t, 0] * ex + e_nrm[t, 1] * ey + e_nrm[t, 2] * ez > rb + FACING_SLACK * (e + rb + 1.0):
+                            continue  # faces away from every receiver of the bucket
                         for c in range(3):
                             near_buf[B_X + c, n_near] = e_pos[t, c]
                             near_buf[B_MX + c, n_near] = e_nrm[t, c]

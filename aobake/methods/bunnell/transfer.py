@@ -84,6 +84,21 @@ DEFAULT_TRANSFER_THETA = 4.0
 # Buckets are dealt cyclically to this many parallel chunks (any fixed number: the result
 # does not depend on it, nor on the thread count).
 TRANSFER_CHUNKS = 64
+# Receivers per bucket (one tree walk each) and disks per leaf of the transfer's tree.
+TRANSFER_BUCKET = 32
+TRANSFER_LEAF_SIZE = 8
+
+
+def receiver_buckets(points):
+    """``(order, bucket_start)``: every receiver once, grouped into compact buckets of at
+    most TRANSFER_BUCKET (the leaves of a median-split tree over ``points``)."""
+    from ...kernels import hierarchy as _h
+    from .tree import tree_keys
+
+    n = points.shape[0]
+    perm, start, _, skip = _h.build_tree(tree_keys(points), TRANSFER_BUCKET)
+    leaves = np.flatnonzero(skip == np.arange(1, skip.shape[0] + 1))
+    return np.ascontiguousarray(perm, dtype=np.int64), np.append(start[leaves], n).astype(np.int64)
 
 
 class TransferScene:
@@ -95,7 +110,7 @@ class TransferScene:
     def __init__(self, elements: DiskElements, tree, theta: float):
         from ...constants import OPEN_COHERENCE
         from ...kernels import transfertree as _kt2
-        from .passes import receiver_buckets
+        from ...kernels import treewalk as _tw
         from .tree import node_coherence, refit_tree
 
         self.n_vertices = elements.n_vertices
@@ -121,9 +136,11 @@ class TransferScene:
         geometry = np.zeros((tree.n_nodes, _kt2.GEOMETRY_COLS))
         geometry[:, _kt2.G_X : _kt2.G_Z + 1] = g[:, :3]
         geometry[:, _kt2.G_OPEN_D2] = np.where(np.isnan(open_d2), np.inf, open_d2)
-        _kt2.node_spread(self._e_nrm, self._e_area, tree.skip, tree.start, tree.stop, geometry)
         self._geometry = geometry
-        self._recv_order, self._bucket_start = receiver_buckets(elements, tree)
+        self._recv_order, self._bucket_start = receiver_buckets(self._points)
+        self._bounds = np.zeros((self._bucket_start.shape[0] - 1, _tw.BOUND_COLS))
+        _tw.bucket_bounds(self._points, self._normals, np.zeros(self.n_vertices), self._recv_order,
+                          self._bucket_start, self._bounds)
         self._light = np.zeros((tree.n_nodes, _kt2.LIGHT_COLS))
 
     def gather(self, radiance) -> np.ndarray:
@@ -151,14 +168,16 @@ class TransferScene:
         _kt2.node_light(self._e_nrm, self._e_area, e_rad, tree.skip, tree.start, tree.stop, light)
         n_buckets = self._bucket_start.shape[0] - 1
         _kt2.gather_tree(
-            self._points, self._normals, self._recv_order, self._bucket_start,
+            self._points, self._normals, self._recv_order, self._bucket_start, self._bounds,
             min(TRANSFER_CHUNKS, n_buckets), tree.skip, tree.start, tree.stop, self._geometry,
             light, self._e_pos, self._e_nrm, self._e_area, e_rad, self._order, out,
         )  # fmt: skip
         return out
 
 
-def prepare_transfer(elements: DiskElements, *, theta: float = DEFAULT_TRANSFER_THETA, tree=None) -> TransferScene:
+def prepare_transfer(
+    elements: DiskElements, *, theta: float = DEFAULT_TRANSFER_THETA, tree=None, leaf_size: int = TRANSFER_LEAF_SIZE
+) -> TransferScene:
     """Everything of the tree transfer that does not depend on the radiance.
 
     Parameters
@@ -170,6 +189,8 @@ def prepare_transfer(elements: DiskElements, *, theta: float = DEFAULT_TRANSFER_
     tree : ClusterTree, optional
         A tree over ``elements.emitter_index`` (``aobake.methods.bunnell.passes.build_tree``,
         or an earlier one for moved vertices: it is refitted); default: built here.
+    leaf_size : int, optional
+        Disks per leaf of the tree built here.
     """
     from .passes import build_tree
 
@@ -179,7 +200,7 @@ def prepare_transfer(elements: DiskElements, *, theta: float = DEFAULT_TRANSFER_
     if elements.n_emitters == 0:
         return TransferScene(elements, None, theta)
     if tree is None:
-        tree = build_tree(elements)
+        tree = build_tree(elements, leaf_size=leaf_size)
     elif not np.array_equal(np.sort(tree.order), elements.emitter_index):
         raise ValueError("tree: built over other disks than these elements' emitters")
     return TransferScene(elements, tree, theta)
