@@ -41,9 +41,11 @@ def block():
 
 
 def test_every_cluster_opened_is_the_brute_force_sum(block):
+    """The same terms, in float32 (lists relative to each bucket's centre): within float32
+    rounding (measured: 5e-7 of the largest value)."""
     el, radiance, want = block
     got = tree_transfer(el, radiance, theta=np.inf)
-    assert np.allclose(got, want, rtol=1e-12, atol=1e-15 * want.max())
+    assert np.allclose(got, want, rtol=1e-5, atol=2e-6 * want.max())
     # random radiance with dark vertices and a zero-normal vertex
     surface = sphere_on_plane(1, 6)
     normals = surface.normals.copy()
@@ -53,7 +55,7 @@ def test_every_cluster_opened_is_the_brute_force_sum(block):
     radiance[::3] = 0.0
     want = unshadowed_irradiance(el, radiance)
     got = tree_transfer(el, radiance, theta=np.inf)
-    assert np.allclose(got, want, rtol=1e-12, atol=1e-15 * want.max())
+    assert np.allclose(got, want, rtol=1e-5, atol=2e-6 * want.max())
     assert np.all(got[5] == 0) and np.count_nonzero(got[:, 0]) > el.n_vertices // 2
 
 
@@ -102,7 +104,7 @@ def test_refitted_tree_after_a_move():
     el2 = build_elements(dataclasses.replace(surface, positions=moved))
     radiance = lit(el2)
     want = unshadowed_irradiance(el2, radiance)
-    assert np.allclose(tree_transfer(el2, radiance, theta=np.inf, tree=tree), want, rtol=1e-12, atol=1e-15 * want.max())
+    assert np.allclose(tree_transfer(el2, radiance, theta=np.inf, tree=tree), want, rtol=1e-5, atol=2e-6 * want.max())
     assert rel_rmse(tree_transfer(el2, radiance, tree=tree), want) < 0.01
 
 
