@@ -24,9 +24,10 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from aobake.constants import COINCIDENT_REL, FASTMATH
+from aobake.constants import COINCIDENT_REL, FASTMATH, MEASURE_COSINE
 
 from .hierarchy import spread_factor
+from .polygon import cell_terms
 from .treewalk import B_RADIUS, behind
 from .treewalk import B_X as B_CX
 from .treewalk import B_Y as B_CY
@@ -109,8 +110,8 @@ def node_light(normals, areas, radiance, skip, start, stop, light):
 # near disks (centre, normal, area, radiance; the disk's vertex in a separate int64
 # array) and far nodes (centre, the node's light row). Centres are stored relative to
 # the bucket's centre (subtracted in float64), so float32 keeps their small differences.
-B_X, B_Y, B_Z, B_MX, B_MY, B_MZ, B_A, B_L = 0, 1, 2, 3, 4, 5, 6, 7
-NEAR_ROWS = 10
+B_X, B_Y, B_Z, B_MX, B_MY, B_MZ, B_A, B_L, B_KEEP = 0, 1, 2, 3, 4, 5, 6, 7, 10
+NEAR_ROWS = 11
 F_X, F_Y, F_Z, F_P, F_W, F_T = 0, 1, 2, 3, 6, 15
 FAR_ROWS = 21
 
@@ -118,7 +119,7 @@ FAR_ROWS = 21
 def near_sums(buf, own, n_near, i, px, py, pz, nx, ny, nz):
     """RGB sums of the exact disk terms of ``buf[:, :n_near]`` at receiver i (as
     ``transfer.gather``: nothing from its own disk, coincident disks or either side
-    facing away)."""
+    facing away), each times its B_KEEP row (0 for the receiver's near-field cells)."""
     s0 = ZERO32
     s1 = ZERO32
     s2 = ZERO32
@@ -131,7 +132,7 @@ def near_sums(buf, own, n_near, i, px, py, pz, nx, ny, nz):
         cr = max(nx * dx + ny * dy + nz * dz, ZERO32)
         ce = max(-(buf[B_MX, t] * dx + buf[B_MY, t] * dy + buf[B_MZ, t] * dz), ZERO32)
         w = PI32 * a * ce * cr / (r2 * (PI32 * r2 + a))
-        w = w if (r2 > COINCIDENT32 * a and own[t] != i) else ZERO32
+        w = w * buf[B_KEEP, t] if (r2 > COINCIDENT32 * a and own[t] != i) else ZERO32
         s0 += w * buf[B_L, t]
         s1 += w * buf[B_L + 1, t]
         s2 += w * buf[B_L + 2, t]
@@ -175,7 +176,7 @@ def far_sums(buf, n_far, px, py, pz, nx, ny, nz):
 
 @njit(cache=True, fastmath=FASTMATH, error_model="numpy", parallel=True)
 def gather_tree(points, normals, recv_order, bucket_start, bounds, n_chunks, skip, start, stop, geometry,
-                light, e_pos, e_nrm, e_area, e_rad, e_own, out):
+                light, e_pos, e_nrm, e_area, e_rad, e_own, cell_start, cell_col, cell_val, out):
     """``out[i]``: the irradiance of :func:`aobake.kernels.transfer.gather` at every receiver,
     through the tree.
 
@@ -208,6 +209,10 @@ def gather_tree(points, normals, recv_order, bucket_start, bounds, n_chunks, ski
     e_rad : (k, 3) float64
     e_own : (k,) int64
         Vertex of each disk; all in tree order.
+    cell_start, cell_col, cell_val
+        The near field (:func:`near_cells`): receiver i's disks ``cell_col[cell_start[i]:
+        cell_start[i + 1]]`` (tree positions) give ``cell_val`` times their radiance instead
+        of their disk term.
     out : (n, 3) float64
         Overwritten.
     """
@@ -217,6 +222,8 @@ def gather_tree(points, normals, recv_order, bucket_start, bounds, n_chunks, ski
     for chunk in prange(n_chunks):
         near_buf = np.empty((NEAR_ROWS, k), dtype=np.float32)
         near_own = np.empty(k, dtype=np.int64)
+        near_t = np.empty(k, dtype=np.int64)
+        pos_of = np.zeros(k, dtype=np.int64)
         far_buf = np.empty((FAR_ROWS, m), dtype=np.float32)
         for b in range(chunk, nb, n_chunks):
             lo = bucket_start[b]
@@ -269,7 +276,10 @@ def gather_tree(points, normals, recv_order, bucket_start, bounds, n_chunks, ski
                             near_buf[B_MX + c, n_near] = e_nrm[t, c]
                             near_buf[B_L + c, n_near] = e_rad[t, c]
                         near_buf[B_A, n_near] = e_area[t]
+                        near_buf[B_KEEP, n_near] = ONE32
                         near_own[n_near] = e_own[t]
+                        near_t[n_near] = t
+                        pos_of[t] = n_near
                         n_near += 1
                     node = nxt
                 else:
@@ -290,8 +300,108 @@ def gather_tree(points, normals, recv_order, bucket_start, bounds, n_chunks, ski
                 nx = np.float32(nx)
                 ny = np.float32(ny)
                 nz = np.float32(nz)
+                # the receiver's near-field disks leave the disk sums (a culled one is not
+                # listed, and its disk term is 0) and give their cells' terms instead
+                for e in range(cell_start[i], cell_start[i + 1]):
+                    t = cell_col[e]
+                    q = pos_of[t]
+                    if q < n_near and near_t[q] == t:
+                        near_buf[B_KEEP, q] = ZERO32
                 f0, f1, f2 = far_sums(far_buf, n_far, px, py, pz, nx, ny, nz)
                 n0, n1, n2 = near_sums(near_buf, near_own, n_near, i, px, py, pz, nx, ny, nz)
-                out[i, 0] = np.float64(f0) + np.float64(n0)
-                out[i, 1] = np.float64(f1) + np.float64(n1)
-                out[i, 2] = np.float64(f2) + np.float64(n2)
+                c0 = 0.0
+                c1 = 0.0
+                c2 = 0.0
+                for e in range(cell_start[i], cell_start[i + 1]):
+                    t = cell_col[e]
+                    v = cell_val[e]
+                    c0 += v * e_rad[t, 0]
+                    c1 += v * e_rad[t, 1]
+                    c2 += v * e_rad[t, 2]
+                    q = pos_of[t]
+                    if q < n_near and near_t[q] == t:
+                        near_buf[B_KEEP, q] = ONE32
+                out[i, 0] = np.float64(f0) + np.float64(n0) + c0
+                out[i, 1] = np.float64(f1) + np.float64(n1) + c1
+                out[i, 2] = np.float64(f2) + np.float64(n2) + c2
+
+
+@njit(cache=True, error_model="numpy", parallel=True)
+def near_cells(points, normals, positions, corner_start, corners, near, skip, start, stop, node_reach,
+               node_centre, e_pos, e_area, e_own, counts, cell_start, cell_col, cell_val, fill):
+    """The near field of every receiver, two calls: with ``fill`` False, ``counts[i]`` = the
+    number of disks j (tree position t) with ``r^2 < near A_j`` from receiver i, j not its
+    own; with ``fill`` True (``cell_start``: the counts' prefix sums), their tree positions
+    and ``pi F_j``, F_j the form factor of vertex j's barycentric cell from receiver i
+    toward its front side (``polygon.cell_terms``), clipped to i's tangent plane: the
+    irradiance per unit radiance of the surface the disk stands for. In tree order per
+    receiver; receivers without a normal get none.
+
+    ``node_reach[q]`` bounds how far from node q's centre a receiver can be near one of
+    its disks (``b + sqrt(near A_max)``, a little more for rounding): the walk skips
+    nodes farther than that.
+
+    Parameters
+    ----------
+    points, normals : (n, 3) float64
+    positions : (n, 3) float64
+        Vertex positions (the cells' corners).
+    corner_start, corners : the cells (``polygon.cell_corners``).
+    near : float > 0
+    skip, start, stop : (m,) int64
+    node_reach : (m,) float64
+    node_centre : (m, 3) float64
+    e_pos : (k, 3) float64
+    e_area : (k,) float64
+    e_own : (k,) int64
+        Tree order.
+    counts : (n,) int64
+    cell_start : (n + 1,) int64
+    cell_col : (c,) int64
+    cell_val : (c,) float64
+    fill : bool
+    """
+    m = skip.shape[0]
+    for i in prange(points.shape[0]):
+        nx = normals[i, 0]
+        ny = normals[i, 1]
+        nz = normals[i, 2]
+        if nx == 0.0 and ny == 0.0 and nz == 0.0:
+            if not fill:
+                counts[i] = 0
+            continue
+        px = points[i, 0]
+        py = points[i, 1]
+        pz = points[i, 2]
+        quad = np.empty((4, 3))
+        found = 0
+        e = cell_start[i] if fill else 0
+        node = 0
+        while node < m:
+            dx = node_centre[node, 0] - px
+            dy = node_centre[node, 1] - py
+            dz = node_centre[node, 2] - pz
+            if dx * dx + dy * dy + dz * dz >= node_reach[node] * node_reach[node]:
+                node = skip[node]
+                continue
+            if skip[node] != node + 1:
+                node += 1
+                continue
+            for t in range(start[node], stop[node]):
+                if e_own[t] == i:
+                    continue
+                ex = e_pos[t, 0] - px
+                ey = e_pos[t, 1] - py
+                ez = e_pos[t, 2] - pz
+                if ex * ex + ey * ey + ez * ez >= near * e_area[t]:
+                    continue
+                if fill:
+                    front, _ = cell_terms(positions, corner_start, corners, e_own[t], px, py, pz, nx, ny, nz,
+                                          MEASURE_COSINE, quad)
+                    cell_col[e] = t
+                    cell_val[e] = np.pi * front
+                    e += 1
+                found += 1
+            node = skip[node]
+        if not fill:
+            counts[i] = found
