@@ -133,16 +133,16 @@ def floor_and_wall(cells):
 
 
 def test_error_shrinks_as_theta_grows(block):
-    """Measured: relative RMSE 1.5e-2 / 7.6e-3 / 4.2e-3 / 2.0e-3 / 7.2e-4 at theta
-    1 / 2 / 4 / 8 / 16 on this scene."""
+    """Measured: relative RMSE 8.6e-3 / 4.5e-3 / 2.2e-3 / 1.2e-3 / 2.6e-4 at theta
+    1 / 2 / 4 / 8 / 16 on this scene (disks only); 2.0e-3 at the defaults (near 4)."""
     el, radiance, want = block
     errors = [rel_rmse(tree_transfer(el, radiance, theta=t, near=0.0), want) for t in (1, 2, 4, 8, 16)]
     assert all(b < a for a, b in zip(errors, errors[1:], strict=False)), errors
-    assert errors[0] < 0.03 and errors[-1] < 1.5e-3, errors
+    assert errors[0] < 0.02 and errors[-1] < 1e-3, errors
     assert errors[0] > 1e-3  # the tree is used: theta 1 is not the exact sum
     # the default near field: against the same sum with every cluster opened
     default = rel_rmse(tree_transfer(el, radiance), tree_transfer(el, radiance, theta=np.inf))
-    assert default < 6e-3, default
+    assert default < 4e-3, default
 
 
 def test_no_negative_light_and_dark_gives_zero(block):

@@ -88,7 +88,7 @@ DEFAULT_TRANSFER_NEAR = 4.0
 # does not depend on it, nor on the thread count).
 TRANSFER_CHUNKS = 64
 # Receivers per bucket (one tree walk each) and disks per leaf of the transfer's tree.
-TRANSFER_BUCKET = 32
+TRANSFER_BUCKET = 128
 TRANSFER_LEAF_SIZE = 8
 
 
