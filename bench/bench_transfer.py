@@ -45,12 +45,33 @@ def errors(got, want):
     return rel, float(np.max(np.abs(got - want)) / want.max())
 
 
+def relight(el, radiance, args):
+    """Time per re-lighting call at the defaults, all threads and one thread, interleaved."""
+    import numba
+
+    prep = timed(lambda: prepare_transfer(el))
+    scene = prep.result
+    calls = iter(range(10**9))
+    threads = args.threads or numba.config.NUMBA_NUM_THREADS
+
+    def call(n):
+        numba.set_num_threads(n)
+        return scene.gather(radiance[next(calls) % len(radiance)])
+
+    t = interleaved({"all": lambda: call(threads), "one": lambda: call(1)}, args.repeats)
+    numba.set_num_threads(threads)
+    print(f"\nprepare {fmt_s(prep.seconds)} s; per call: {fmt_s(t['all'].seconds)} s wall ({fmt_s(t['all'].cpu)} s CPU) "
+          f"on {threads} threads, {fmt_s(t['one'].seconds)} s wall ({fmt_s(t['one'].cpu)} s CPU) on one; "
+          f"goal <= 0.2 s: {'met' if t['all'].seconds <= 0.2 else 'NOT met'}")  # fmt: skip
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--vertices", type=int, default=100_000)
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--threads", type=int, default=None)
     parser.add_argument("--thetas", default="1,2,4,8,16")
+    parser.add_argument("--relight-only", action="store_true", help="only time re-lighting calls at the defaults")
     args = parser.parse_args()
     import numba
 
@@ -67,6 +88,9 @@ def main():
     # warm the compiled code on a small call, then the brute force once (it is slow)
     small = build_elements(spheres_on_ground(5000, cache=False)[0])
     tree_transfer(small, lit(small, 0.0))
+    if args.relight_only:
+        relight(el, radiance, args)
+        return
     unshadowed_irradiance(small, lit(small, 0.0))
     brute = timed(lambda: unshadowed_irradiance(el, radiance[0]))
     want = brute.result
