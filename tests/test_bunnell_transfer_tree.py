@@ -18,7 +18,6 @@ from aobake.methods.bunnell.passes import build_tree
 from aobake.methods.bunnell.transfer import (
     DEFAULT_TRANSFER_THETA,
     prepare_transfer,
-    transfer,
     tree_transfer,
     unshadowed_irradiance,
 )
@@ -64,25 +63,28 @@ def test_every_cluster_opened_is_the_brute_force_sum(block):
 
 
 def near_field_reference(el, radiance, near):
-    """The brute-force sum with the near field, pair by pair in float64: a disk j within
+    """The brute-force sum with the near field, in float64 numpy: a disk j within
     sqrt(near A_j) of receiver i gives pi F L_j, F the form factor of j's cell toward its
-    front (polygon.cell_terms), every other disk its disk term (transfer.transfer)."""
-    want = np.zeros((el.n_vertices, 3))
+    front (polygon.cell_terms), every other disk its disk term
+    ``pi A cos_e cos_r / (pi r^2 + A)`` (both sides facing, not i's own, not coincident)."""
+    emit = el.emitter_index
+    c, m, a = el.positions[emit], el.normals[emit], el.areas[emit]
+    d = c[None, :, :] - el.points[:, None, :]
+    r2 = (d * d).sum(-1)
+    cr = (el.normals[:, None, :] * d).sum(-1)
+    ce = -(m[None, :, :] * d).sum(-1)
+    has_normal = el.normals.any(axis=1)[:, None]
+    own = emit[None, :] == np.arange(el.n_vertices)[:, None]
+    is_near = (r2 < near * a) & ~own & has_normal
+    keep = (cr > 0) & (ce > 0) & (r2 > 1e-12 * a) & ~own & has_normal & ~is_near
+    with np.errstate(divide="ignore", invalid="ignore"):
+        f = np.where(keep, np.pi * a * ce * cr / (r2 * (np.pi * r2 + a)), 0.0)
     quad = np.empty((4, 3))
-    for i in range(el.n_vertices):
-        n = el.normals[i]
-        if not n.any():
-            continue
-        for j in el.emitter_index:
-            if j == i:
-                continue
-            d = el.positions[j] - el.points[i]
-            if d @ d < near * el.areas[j]:
-                front, _ = cell_terms(el.positions, el.corner_start, el.corners, j, *el.points[i], *n, MEASURE_COSINE, quad)
-                want[i] += np.pi * front * radiance[j]
-            else:
-                want[i] += transfer(el.points[i], n, el.positions[j], el.normals[j], [el.areas[j]], radiance[j])[0]
-    return want
+    for i, col in zip(*np.nonzero(is_near), strict=True):
+        front, _ = cell_terms(el.positions, el.corner_start, el.corners, emit[col], *el.points[i], *el.normals[i],
+                              MEASURE_COSINE, quad)  # fmt: skip
+        f[i, col] = np.pi * front
+    return f @ radiance[emit]
 
 
 def test_near_field_is_the_cells_exact_form_factor():
