@@ -106,8 +106,9 @@ def receiver_buckets(points):
 
 class TransferScene:
     """A scene prepared for repeated transfers (:func:`prepare_transfer`): the tree, the
-    disks in tree order, the nodes' geometry and the receivers' buckets are kept; each
-    :meth:`gather` only sums the new radiance up the tree and walks it.
+    disks in tree order, the nodes' centres and opening distances, the receivers' buckets
+    and the near-field cells are kept; each :meth:`gather` only sums the new radiance up
+    the tree and walks it.
     """
 
     def __init__(self, elements: DiskElements, tree, theta: float, near: float):
@@ -137,7 +138,7 @@ class TransferScene:
         size = size * (1.0 + OPEN_COHERENCE * (1.0 - node_coherence(tree, elements.normals, elements.areas)))
         # how far from a node's centre a receiver can be in the near field of one of its
         # disks (a hair more, for rounding): such nodes are never used whole
-        reach = (b + np.sqrt(self.near * g[:, 5])) * (1.0 + 1e-9) + 1e-300
+        reach = (b + np.sqrt(self.near * g[:, 5])) * (1.0 + 1e-9)
         with np.errstate(invalid="ignore", over="ignore"):
             open_d2 = np.maximum(self.theta * size, np.maximum(b, reach) ** 2)
         geometry = np.zeros((tree.n_nodes, _kt2.GEOMETRY_COLS))
@@ -148,7 +149,6 @@ class TransferScene:
         self._bounds = np.zeros((self._bucket_start.shape[0] - 1, _tw.BOUND_COLS))
         _tw.bucket_bounds(self._points, self._normals, np.zeros(self.n_vertices), self._recv_order,
                           self._bucket_start, self._bounds)
-        self._light = np.zeros((tree.n_nodes, _kt2.LIGHT_COLS))
         self._cells = self._near_cells(elements, reach)
 
     def _near_cells(self, elements: DiskElements, reach):
@@ -192,7 +192,7 @@ class TransferScene:
             return out
         tree = self.tree
         e_rad = np.ascontiguousarray(radiance[self._order])
-        light = self._light
+        light = np.empty((tree.n_nodes, _kt2.LIGHT_COLS))  # per call: calls may run concurrently
         _kt2.node_light(self._e_nrm, self._e_area, e_rad, tree.skip, tree.start, tree.stop, light)
         n_buckets = self._bucket_start.shape[0] - 1
         _kt2.gather_tree(
