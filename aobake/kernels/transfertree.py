@@ -1,8 +1,11 @@
 """Compiled disk-to-disk radiance transfer through the cluster tree: far clusters as one
-emitter carrying summed RGB power, near pairs exact per disk (the brute-force sum is
+emitter carrying summed RGB power, near pairs exact per disk, disks in a receiver's near
+field replaced by their cells' exact form factor (the brute-force sum is
 ``aobake.kernels.transfer.gather``).
 
-Imports numpy, numba and ``aobake.constants`` only. Symbols as in
+Imports numpy, numba, ``aobake.constants`` and other kernels only. numba caches each
+kernel by its own file's time stamp: after changing the inlined ``treewalk.behind``,
+``hierarchy.spread_factor`` or ``polygon.cell_terms``, touch this file. Symbols as in
 ``aobake.kernels.transfer``: receiver ``i`` at ``p`` with unit normal ``n``; disk ``j`` at
 ``c`` with unit normal ``m``, area ``A``, radiance ``L`` (RGB). The tree is
 ``aobake.kernels.hierarchy``'s (preorder, skip pointers, emitters in tree order).
@@ -183,8 +186,9 @@ def gather_tree(points, normals, recv_order, bucket_start, bounds, n_chunks, ski
     Receivers walk the tree by buckets (``recv_order[bucket_start[b]:bucket_start[b + 1]]``,
     compact groups): a node whose light is zero is skipped, and so is a far node, or a
     near disk, behind every receiver's tangent plane (``treewalk.behind``) or a near disk
-    facing away from the bucket's sphere (all exact: their terms are 0); a node is used whole when the
-    bucket's bounding sphere is farther than ``sqrt(G_OPEN_D2)`` from its centre
+    facing away from the bucket's sphere (all exact: their terms are 0); a node is used
+    whole when the bucket's bounding sphere is farther than ``sqrt(G_OPEN_D2)`` from its
+    centre
     (:func:`far_sums`: the disk term ``pi L A cos_e cos_r / (pi r^2 + A)`` summed over its
     disks, without the near-field regularisation); a leaf that is not far lists its lit
     disks for their exact terms (:func:`near_sums`). Each receiver sums its bucket's lists
