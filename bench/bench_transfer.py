@@ -2,9 +2,11 @@
 sum: time per call and error at several theta, the prepare / re-light split, on ~100k
 vertices.
 
-    PYTHONPATH=. python bench/bench_transfer.py [--vertices 100000] [--repeats 3] [--threads 2]
+    PYTHONPATH=. python bench/bench_transfer.py [--vertices 100000] [--scene spheres|bunny]
+        [--repeats 3] [--threads 2] [--relight-only]
 
-The scene is bench/common.py's four balls on a floor, every vertex sending the radiance
+The scene is bench/common.py's four balls on a floor (``--scene bunny``: the bunny on a
+floor), every vertex sending the radiance
 of a diffuse surface (albedo (0.8, 0.5, 0.3)) under a distant light, unshadowed:
 ``max(n.l, 0) albedo``. Re-lighting moves that light: each timed call gathers a new
 radiance through the same prepared scene (the radiance itself is the caller's; the goal
@@ -28,7 +30,15 @@ from aobake.methods.bunnell.transfer import (
     unshadowed_irradiance,
 )
 
-from common import fmt_s, interleaved, machine_facts, print_table, spheres_on_ground, timed
+from common import (
+    bunny_on_ground,
+    fmt_s,
+    interleaved,
+    machine_facts,
+    print_table,
+    spheres_on_ground,
+    timed,
+)
 
 ALBEDO = np.array([0.8, 0.5, 0.3])
 
@@ -71,6 +81,7 @@ def main():
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--threads", type=int, default=None)
     parser.add_argument("--thetas", default="1,2,4,8,16")
+    parser.add_argument("--scene", choices=("spheres", "bunny"), default="spheres")
     parser.add_argument("--relight-only", action="store_true", help="only time re-lighting calls at the defaults")
     args = parser.parse_args()
     import numba
@@ -80,7 +91,7 @@ def main():
     for k, v in machine_facts():
         print(f"{k}: {v}")
     print(f"numba threads: {numba.get_num_threads()}")
-    surface, desc = spheres_on_ground(args.vertices)
+    surface, desc = (spheres_on_ground if args.scene == "spheres" else bunny_on_ground)(args.vertices)
     el = build_elements(surface)
     print(f"scene: {desc}, {el.n_vertices} vertices")
     radiance = [lit(el, a) for a in np.linspace(0.0, 2.0 * np.pi, 6, endpoint=False)]
