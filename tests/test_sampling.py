@@ -119,6 +119,35 @@ def test_scrambled_points_are_uniform_across_vertices():
     _binned_uniformity(pts, 4)
 
 
+def _random2_reference(index, key):
+    """random2 in Python integers: SplitMix64's finaliser, hash2(key, index + c)."""
+    m = (1 << 64) - 1
+
+    def mix(x):
+        x ^= x >> 30
+        x = (x * 0xBF58476D1CE4E5B9) & m
+        x ^= x >> 27
+        x = (x * 0x94D049BB133111EB) & m
+        return x ^ (x >> 31)
+
+    h = mix(key ^ mix((index + 0x632BE59BD9B4E019 + 0x9E3779B97F4A7C15) & m))
+    return (h >> 32) / 2**32, (mix(h) >> 32) / 2**32
+
+
+def test_random2_and_its_split_hash_match_the_formula():
+    # The paths hash a sample's index once for all keys (index_hash, random2_hashed):
+    # the same numbers as random2, which are the formula's.
+    from aobake.kernels.lights import path_hashes
+
+    keys = [0, 1, 0x9E3779B97F4A7C15, (1 << 64) - 1]
+    hashes = path_hashes(5, 300)
+    for key in keys:
+        for index in (5, 6, 77, 299):
+            want = _random2_reference(index, key)
+            assert rng.random2(index, np.uint64(key)) == want
+            assert rng.random2_hashed(hashes[index - 5], np.uint64(key)) == want
+
+
 def test_reverse_bits():
     assert rng.reverse_bits32(np.uint64(1)) == np.uint64(0x80000000)
     assert rng.reverse_bits32(np.uint64(0x80000000)) == np.uint64(1)
