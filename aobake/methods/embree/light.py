@@ -120,7 +120,8 @@ def irradiance(
     check_shading(surface, shading)
     t0 = time.perf_counter()
     progress = progress or NullProgress()
-    threads = max(1, int(options.threads or os.cpu_count() or 1))
+    cores = os.cpu_count() or 1
+    threads = max(1, min(int(options.threads or cores), cores))  # more: no faster, more memory
     n = surface.n_vertices
     lights = tuple(light for light in shading.lights)
     n_lights = len(lights)
@@ -258,8 +259,7 @@ def irradiance(
         per = p1 - p0
         block = max(1, BLOCK_RAYS // per)
         size = min(block, vidx.size) * per
-        index_of = np.tile(np.arange(p0, p1, dtype=np.int64), min(block, vidx.size))
-        vertex_of = np.empty(size, dtype=np.int64)
+        hashes = _kl.path_hashes(p0, p1)
         path_org = np.empty((size, 3))
         path_normal = np.empty((size, 3))
         alive = np.empty(size, dtype=bool)
@@ -283,10 +283,9 @@ def irradiance(
         rays = 0
         for b in range(0, vidx.size, block):
             sub = vidx[b : b + block]
-            count = sub.size * per
-            m = _kl.first_rays(sub, per, p0, origins, normals, keys, vertex_of, alive, throughput, value_d, value_i, live, org, dirs)
+            m = _kl.first_rays(sub, per, p0, origins, normals, keys, alive, throughput, value_d, value_i, live, org, dirs)
             rays += _trace_paths(
-                count, m, vertex_of, index_of, path_org, path_normal, alive, throughput, value_d, value_i,
+                sub, per, hashes, m, path_org, path_normal, alive, throughput, value_d, value_i,
                 live, org, dirs, far, s_org, s_dir, s_far, s_w, s_row, on_plane,
             )  # fmt: skip
             _kl.path_sums(value_d, value_i, per, sd[b : b + sub.size], si[b : b + sub.size], sq[b : b + sub.size])
@@ -298,18 +297,17 @@ def irradiance(
         return rays
 
     def _trace_paths(
-        count, m, vertex_of, index_of, path_org, path_normal, alive, throughput, value_d, value_i,
+        sub, per, hashes, m, path_org, path_normal, alive, throughput, value_d, value_i,
         live, org, dirs, far, s_org, s_dir, s_far, s_w, s_row, on_plane,
     ):  # fmt: skip
-        """Paths 0..count-1 of the buffers, their m first rays written, to their end; the
-        rays cast."""
+        """The paths of vertices ``sub`` (``per`` each, the buffers' first rows), their m
+        first rays written, to their end; the rays cast."""
         rays = 0
-        alive = alive[:count]
         for depth in range(bounces + 1):
             if depth == bounces and not sees_dome:
                 break  # the last ray only looks for the dome: without one it adds nothing
             if depth > 0:
-                m = _kl.bounce_directions(path_org, path_normal, alive, keys, vertex_of, index_of, depth, inv_scale, live, org, dirs)
+                m = _kl.bounce_directions(path_org, path_normal, alive, keys, sub, per, hashes, depth, inv_scale, live, org, dirs)
             if m == 0:
                 break
             if ground is not None:  # Embree looks no farther than the plane
@@ -331,7 +329,7 @@ def irradiance(
             if depth == bounces:
                 break
             m = _kl.hit_samples(
-                alive, path_org, path_normal, throughput, keys, vertex_of, index_of, depth,
+                alive, path_org, path_normal, throughput, keys, sub, per, hashes, depth,
                 kinds, params, has_emitters, points, faces, tris, cdf, emission, lum_total, face_offsets,
                 inv_scale, far_cap, value_i, s_org, s_dir, s_far, s_w, s_row,
             )  # fmt: skip
