@@ -561,7 +561,7 @@ def bake(
     type=click.Choice(METHODS),
     default=METHODS[0],
     show_default=True,
-    help="The method the bake would use (light needs embree).",
+    help="The method the bake would use (its rays and settings).",
 )
 @method_options
 @LIGHT_OPTIONS[0]

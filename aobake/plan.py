@@ -91,7 +91,7 @@ class Plan:
         if self.rays:
             total = sum(self.rays.values())
             parts = ", ".join(f"{k} {v:,}" for k, v in self.rays.items() if v)
-            lines.append(f"expected rays: {total:,} ({parts})")
+            lines.append(f"expected rays: {total:,} ({parts})" if total else "expected rays: none")
         return "\n".join(lines)
 
 
