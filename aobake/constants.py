@@ -64,6 +64,13 @@ Z95 = 1.959963984540054
 # to amortise the call and small enough to keep per-chunk memory flat on big meshes.
 CHUNK_RAYS = 1 << 20
 
+# A bake's Embree scene is built on a thread of its own while the mesh's normals and
+# contact points are computed, up to this many vertices: on two cores that hides most of
+# the build (~0.4 s of a 721k-vertex bake), but the BVH's memory (~230 bytes per vertex
+# at its peak) then adds to theirs (~150) instead of following them, so larger meshes,
+# where memory is what limits, build it after them (docs/process.md).
+EARLY_SCENE_MAX_VERTICES = 2_000_000
+
 # Rays (or paths) the light transport makes and traces together through buffers made
 # once per chunk: their records (~0.1 kB a ray, ~0.3 kB a path) stay near a core's
 # cache instead of being faulted in anew (2048-16384 measured alike on the box).
@@ -98,6 +105,12 @@ NEAR_PLANE_REL = 1e-6
 # normal points to, as a ray from the surface would see it. 100x NEAR_PLANE_REL, so such
 # faces are never taken as edge-on; 1e-4 edge lengths changes no other term measurably.
 NEAR_OFFSET_REL = 1e-4
+
+# The disk method's light: each area light (and a scene's emitting triangles together) is
+# cut into about this many emitting disks of equal area. The transfer's error falls about
+# 4x per halving of a disk's size (docs/bunnell-light.md): 256 cells keep a light's own
+# error below 1% at distances above ~1/10 of its size, at a cost the vertex disks dwarf.
+LIGHT_DISKS = 256
 
 # An emitter closer to the receiver than sqrt(COINCIDENT_REL * A) is treated as the same
 # point (split vertices share a position) and skipped when its disk is used: relative to

@@ -373,7 +373,7 @@ class RawPart:
 
 
 def assemble_surface(
-    raw: list[RawPart], where: str | Path, metadata: dict | None = None
+    raw: list[RawPart], where: str | Path, metadata: dict | None = None, prepare=None
 ) -> Surface:
     """Validate parts, compute missing normals, concatenate into one :class:`Surface`.
 
@@ -386,6 +386,9 @@ def assemble_surface(
         What errors name (the path); the surface's ``source`` is its name.
     metadata : dict, optional
         Becomes :attr:`Surface.metadata`.
+    prepare : callable, optional
+        Called as ``prepare(positions, faces)`` with the surface's own arrays once they
+        are checked, before the normals: a caller starts there what needs only those.
 
     Returns
     -------
@@ -432,6 +435,9 @@ def assemble_surface(
             [p.faces + off for p, off in zip(with_faces, offsets[:-1], strict=True)]
         ).astype(np.int64, copy=False)
     validate_arrays(positions, faces, where)
+    positions, faces = np.ascontiguousarray(positions), np.ascontiguousarray(faces)
+    if prepare is not None:
+        prepare(positions, faces)
     normals = np.concatenate([_vertex_normals(p.positions, p.faces, p.normals) for p in with_faces])
     warn_missing_normals(normals, positions, faces, source)
     parts = tuple(
@@ -448,8 +454,8 @@ def assemble_surface(
         for i, p in enumerate(with_faces)
     )
     return Surface(
-        np.ascontiguousarray(positions),
-        np.ascontiguousarray(faces),
+        positions,
+        faces,
         normals,
         parts,
         source,

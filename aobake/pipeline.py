@@ -86,13 +86,14 @@ class BakeReport:
         return text + compile_note(self.compile_seconds) + f" -> {self.output}"
 
 
-def as_surface(mesh: Any, time: float | None = None) -> Surface:
+def as_surface(mesh: Any, time: float | None = None, prepare=None) -> Surface:
     """A :class:`Surface` from a path, a ``trimesh.Trimesh``/``Scene``, or a Surface
-    (``time``: the USD time code to read a path at)."""
+    (``time``: the USD time code to read a path at; ``prepare``: see
+    :func:`aobake.io.load_mesh`, called for a path only)."""
     if isinstance(mesh, (str, Path)):
         from .io import load_mesh
 
-        return load_mesh(mesh, time=time)
+        return load_mesh(mesh, time=time, prepare=prepare)
     if time is not None:
         raise ValueError("time applies to USD files only; got a loaded mesh")
     if isinstance(mesh, Surface):
@@ -254,8 +255,10 @@ def bake_file(
 
     outputs = _check_outputs(output, source, overlay)
     placed = _load_fields(fields)
+    started: list = []  # the Embree scene, when it is built while the normals are computed
+    prepare = None if weld or receivers or occluders else _scene_starter(method, started)
     with shared_stages():  # a USD scene's meshes, lights and materials from one open stage
-        surface = as_surface(source, time)
+        surface = as_surface(source, time, prepare)
         check_outputs(surface, outputs, channel)
         selection = Selection.of(surface, receivers, occluders)
         light = lighting.prepare(
@@ -264,8 +267,9 @@ def bake_file(
         )  # fmt: skip
     plane = _ground(surface, ground, up_axis)
     part = _bake_range(
-        surface, method, options, progress, None, weld=weld, selection=selection, light=light, ground=plane
-    )
+        surface, method, options, progress, None, weld=weld, selection=selection, light=light, ground=plane,
+        started=started,
+    )  # fmt: skip
     return _write(
         source, surface, outputs, [part], method, options, placed, color, up_axis, meters_per_unit,
         channel, weld, overlay, selection, light, plane,
@@ -426,21 +430,42 @@ def _check_outputs(output, source, overlay: bool | None = None) -> list[Path]:
     return outputs
 
 
+def _scene_starter(method: str, started: list):
+    """A ``prepare`` for :func:`aobake.io.load_mesh` that starts building the Embree scene
+    ``method`` will trace (:func:`aobake.tracing.start_scene`) and appends it to
+    ``started``, for meshes of up to ``EARLY_SCENE_MAX_VERTICES`` vertices (the overlap
+    costs memory); None for methods that trace no whole-surface scene."""
+    from .constants import EARLY_SCENE_MAX_VERTICES
+    from .methods import WHOLE_SCENE
+
+    if method not in WHOLE_SCENE:
+        return None
+
+    def prepare(positions, faces) -> None:
+        if positions.shape[0] <= EARLY_SCENE_MAX_VERTICES:
+            from .tracing import start_scene
+
+            started.append(start_scene(positions, faces))
+
+    return prepare
+
+
 def _bake_range(
     surface: Surface, method: str, options: dict, progress, vertices, *, weld: bool = False, selection=None,
-    light=None, ground=None,
+    light=None, ground=None, started=(),
 ) -> PartResult:  # fmt: skip
     """Run ``method`` on ``vertices`` (None: all); compiling kernels is kept out of the time.
     ``weld``: bake the welded mesh (whole meshes only), results per input vertex.
     ``selection``: trace only its occluders, from its receivers (:func:`_compute_selected`).
     ``light``: a lit scene's :class:`aobake.lighting.LightJob`, computed on the same
     scene (whole meshes only), through the Embree scene the AO built (one, not two).
-    ``ground``: a resolved plane every AO method counts."""
+    ``ground``: a resolved plane every AO method counts. ``started``: Embree scenes
+    already under way (:func:`_scene_starter`)."""
     from .tracing import shared_scenes
 
     totals = None
     welded = inverse = None
-    with CompileWatch() as watch, shared_scenes():
+    with CompileWatch() as watch, shared_scenes(started):
         t0 = perf_counter()
         if weld:
             from .mesh import weld_vertices

@@ -27,6 +27,7 @@ __all__ = [
     "power_of_two_scale",
     "shared_scenes",
     "split",
+    "start_scene",
     "trace_chunks",
     "tracer_for",
 ]
@@ -81,33 +82,61 @@ class Tracer:
         if faces.size and faces.max() > np.iinfo(np.int32).max:
             raise InputError(None, f"{faces.max()} vertices exceed Embree's 32-bit indices")
         self._faces, self._robust, self._embree = faces, robust, None
+        self._building: tuple | None = None  # (thread, scene, outcome) of a background build
         if not deferred:
             self.build()
 
-    def build(self) -> Tracer:
+    def build(self, *, background: bool = False) -> Tracer:
         """Hand the triangles to Embree and build its BVH, once. A tracer made with
         ``deferred=True`` (its frame known, :attr:`local` and :meth:`frame` usable)
         answers queries only after this, so a caller can free what it prepared from the
-        frame before Embree's memory (~170 bytes per vertex) is taken."""
+        frame before Embree's memory (~170 bytes per vertex) is taken.
+
+        ``background=True``: the triangles are handed over now and Embree builds the BVH
+        on a thread of its own, the GIL released, while the caller goes on; the first
+        query, or ``build()``, waits for it (the same BVH either way). Where the build
+        cannot be started that way it is done now."""
         if self._embree is not None:
             return self
+        if self._building is not None:
+            return self._join()
         from embreex import rtcore, rtcore_scene
         from embreex.mesh_construction import TriangleMesh
 
         device = rtcore.EmbreeDevice()
         scene = rtcore_scene.EmbreeScene(device, robust=self._robust)
-        if not _upload(scene, device, self._positions, self.center, self.scale, self._faces):
+        uploaded = _upload(scene, device, self._positions, self.center, self.scale, self._faces)
+        if not uploaded:
             TriangleMesh(scene, self.frame(self.local), self._faces.astype(np.int32))
+        self._faces = None
+        if background and uploaded:
+            outcome: list = []
+            thread = threading.Thread(target=_commit, args=(scene, device, outcome), name="embree-build")
+            self._building = (thread, scene, outcome)
+            thread.start()
+            return self
         # Commit now, on this thread: EmbreeScene.run commits lazily and is not safe to
         # commit from two worker threads at once.
         probe = np.zeros((1, 3), dtype=np.float32)
         scene.run(probe, np.array([[0, 0, 1]], dtype=np.float32), query="OCCLUDED")
-        self._embree, self._faces = scene, None
+        self._embree = scene
+        return self
+
+    def _join(self) -> Tracer:
+        """Wait for a background build (:meth:`build`); its error, if any, raised here."""
+        thread, scene, outcome = self._building
+        thread.join()
+        self._building = None
+        if outcome:
+            raise outcome[0]
+        self._embree = scene
         return self
 
     @property
     def _scene(self):
         if self._embree is None:
+            if self._building is not None:
+                return self._join()._embree
             raise RuntimeError("Tracer(deferred=True) traces only after build()")
         return self._embree
 
@@ -166,18 +195,27 @@ _shared = threading.local()
 
 
 @contextmanager
-def shared_scenes():
+def shared_scenes(started: Iterable = ()):
     """Within the block (on this thread), :func:`tracer_for` builds one :class:`Tracer`
     per pair of arrays and hands the same one out again: a lit bake's light pass traces
-    the Embree scene its AO pass built. The arrays must not change inside the block."""
+    the Embree scene its AO pass built. The arrays must not change inside the block.
+    ``started``: ``(positions, faces, tracer)`` made beforehand (:func:`start_scene`),
+    handed out for those arrays."""
     outer = getattr(_shared, "scenes", None)
     if outer is None:
         _shared.scenes = []
+    _shared.scenes.extend(started)
     try:
         yield
     finally:
         if outer is None:
             _shared.scenes = None
+
+
+def start_scene(positions: FloatArray, faces: IndexArray) -> tuple:
+    """``(positions, faces, tracer)``: a :class:`Tracer` whose BVH Embree builds in the
+    background from now (:meth:`Tracer.build`), for :func:`shared_scenes`."""
+    return positions, faces, Tracer(positions, faces, deferred=True).build(background=True)
 
 
 def tracer_for(positions: FloatArray, faces: IndexArray, *, deferred: bool = False) -> Tracer:
@@ -245,6 +283,7 @@ def _embree_api():
                 ("rtcCommitGeometry", None, [vp]),
                 ("rtcAttachGeometry", uint, [vp, vp]),
                 ("rtcReleaseGeometry", None, [vp]),
+                ("rtcCommitScene", None, [vp]),
                 ("rtcGetDeviceError", enum, [vp]),
             ):
                 fn = getattr(lib, name)
@@ -295,6 +334,22 @@ def _upload(scene, device, positions: np.ndarray, center, scale: float, faces: n
     if lib.rtcGetDeviceError(device_ptr) != 0:
         raise MemoryError("Embree could not take the triangles (out of memory?)")
     return True
+
+
+def _commit(scene, device, outcome: list) -> None:
+    """Build the BVH of a scene :func:`_upload` filled (``rtcCommitScene`` through ctypes,
+    which releases the GIL) and mark it committed for embreex; an error is appended to
+    ``outcome`` for :meth:`Tracer.build` to raise."""
+    import ctypes
+
+    try:
+        lib, head, _ = _embree_api()
+        lib.rtcCommitScene(ctypes.c_void_p.from_address(id(scene) + head).value)
+        if lib.rtcGetDeviceError(ctypes.c_void_p.from_address(id(device) + head).value) != 0:
+            raise MemoryError("Embree could not build its scene (out of memory?)")
+        scene.is_committed = 1  # what EmbreeScene.run sets once it has committed
+    except BaseException as exc:  # raised again on the caller's thread
+        outcome.append(exc)
 
 
 def power_of_two_scale(magnitude: float) -> float:

@@ -21,7 +21,9 @@ subdivision 9 over 1024^2 (3,672,067), with ``--huge`` subdivision 10 over 4096^
    count): the ratio is the process overhead the issue's goals bound.
 2. Stage shares: one run of each configuration under cProfile in a fresh process; the
    cumulative time of each stage function as a share of the whole (the profiler slows
-   Python-heavy stages more than native ones: shares, not seconds).
+   Python-heavy stages more than native ones: shares, not seconds). With ``--stages``
+   instead: the wall time of each stage from ``perf_counter`` marks around the stage
+   functions in a fresh process (no profiler), median of ``--repeats`` round-robin runs.
 
 3. Against libigl (721k scene, when ``igl`` is installed): a fresh process running the
    shortest libigl script of the same bake, ``read_triangle_mesh``, ``per_vertex_normals``,
@@ -138,16 +140,101 @@ runpy.run_module("aobake", run_name="__main__")
 """
 
 
-def run_bake(code: str, ply: Path, args: list[str], out_dir: str, profile: Path | None = None):
+#: The child's script for ``--stages``: :data:`LAUNCH` with ``perf_counter`` marks around
+#: the stage functions (those the checkout has), written as JSON at exit: per stage its
+#: wall seconds (calls summed), ``imports`` (the CLI's start to the bake's), ``kernels``
+#: (numba loading cached kernels, inside the stages) and ``process`` (the script's start
+#: to exit; the interpreter's start is the rest of the measured wall).
+STAGE_LAUNCH = """import time
+T0 = time.perf_counter()
+import atexit, functools, importlib, json, runpy, shutil, sys
+status, marks_path = sys.argv.pop(1), sys.argv.pop(1)
+atexit.register(shutil.copyfile, "/proc/self/status", status)
+marks = {}
+WRAP = %r
+
+def add(label, t):
+    marks[label] = marks.get(label, 0.0) + time.perf_counter() - t
+
+def wrapped(fn, label):
+    @functools.wraps(fn)
+    def w(*a, **k):
+        t = time.perf_counter()
+        try:
+            return fn(*a, **k)
+        finally:
+            add(label, t)
+    return w
+
+def install(name):
+    module = sys.modules[name]
+    for mod, attr, label in WRAP:
+        if mod != name:
+            continue
+        owner, parts = module, attr.split(".")
+        for p in parts[:-1]:
+            owner = getattr(owner, p, None)
+        if owner is not None and callable(getattr(owner, parts[-1], None)):
+            setattr(owner, parts[-1], wrapped(getattr(owner, parts[-1]), label))
+    if name == "numba.core.dispatcher":
+        cls = module.Dispatcher
+        cls._compile_for_args = wrapped(cls._compile_for_args, "kernels")
+    if name == "aobake.pipeline":
+        marks["imports"] = time.perf_counter() - T0
+
+class Finder:  # wraps each module of WRAP as soon as it is imported
+    names = {m for m, _, _ in WRAP} | {"numba.core.dispatcher"}
+
+    def find_spec(self, name, path=None, target=None):
+        if name not in self.names:
+            return None
+        self.names.discard(name)
+        spec = importlib.util.find_spec(name)
+        loader = spec.loader
+        run = loader.exec_module
+
+        def exec_module(module):
+            run(module)
+            install(name)
+        loader.exec_module = exec_module
+        return spec
+
+import importlib.util
+sys.meta_path.insert(0, Finder())
+
+def dump():
+    marks["process"] = time.perf_counter() - T0
+    with open(marks_path, "w") as f:
+        json.dump(marks, f)
+atexit.register(dump)
+sys.argv[0] = "aobake"
+runpy.run_module("aobake", run_name="__main__")
+"""
+#: (module, attribute, stage) wrapped by :data:`STAGE_LAUNCH`; a stage's calls are summed.
+STAGE_MARKS = [
+    ("aobake.io.ply", "read_parts", "read"),
+    ("aobake.mesh", "angle_weighted_normals", "normals"),
+    ("aobake.tracing", "Tracer.build", "scene build"),
+    ("aobake.methods.embree.estimator", "contact_origins", "contacts"),
+    ("aobake.methods.embree.estimator", "trace_chunks", "rays + trace"),
+    ("aobake.io", "write_bake", "write"),
+    ("aobake.pipeline", "bake_file", "bake"),
+]
+
+
+def run_bake(code: str, ply: Path, args: list[str], out_dir: str, profile: Path | None = None,
+             marks: Path | None = None):  # fmt: skip
     """(wall seconds, peak RSS bytes) of one ``aobake bake`` in a fresh process that
-    imports aobake from the checkout ``code`` (its working directory and PYTHONPATH)."""
+    imports aobake from the checkout ``code`` (its working directory and PYTHONPATH);
+    ``profile``: under cProfile, to that file; ``marks``: :data:`STAGE_LAUNCH`'s stage
+    times to that JSON file."""
     env = dict(os.environ, PYTHONPATH=code)
     status, launch = os.path.join(out_dir, "status"), Path(out_dir) / "launch.py"
-    launch.write_text(LAUNCH)
+    launch.write_text(LAUNCH if marks is None else STAGE_LAUNCH % (STAGE_MARKS,))
     cmd = [sys.executable]
     if profile is not None:
         cmd += ["-m", "cProfile", "-o", str(profile)]
-    cmd += [str(launch), status, "bake", str(ply), "-o", os.path.join(out_dir, "out.ply"),
+    cmd += [str(launch), status] + ([] if marks is None else [str(marks)]) + ["bake", str(ply), "-o", os.path.join(out_dir, "out.ply"),
             "--up", "Z", "--quiet", *args]  # fmt: skip
     t0 = time.perf_counter()
     proc = subprocess.run(cmd, env=env, cwd=code, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
@@ -283,6 +370,48 @@ def igl_table(ply: Path, codes, repeats: int, out_dir: str, n_vertices: int) -> 
     )
 
 
+#: Disjoint stages of :data:`STAGE_MARKS`, in the order of a bake.
+STAGE_COLUMNS = ["imports", "read", "normals", "contacts", "scene build", "rays + trace", "write"]
+
+
+def stage_table(name: str, ply: Path, configs, codes, repeats: int, out_dir: str) -> None:
+    """``--stages``: each row's stage wall times (:data:`STAGE_LAUNCH`), round-robin over
+    the checkouts, the median of ``repeats`` runs per cell."""
+    import json
+
+    runs: dict = {}
+    for _ in range(repeats):
+        for label, bake_args in configs:
+            for cname, code in codes:
+                log(f"stage marks {name} {label} [{cname}]")
+                path = Path(out_dir) / "marks.json"
+                wall, _ = run_bake(code, ply, bake_args, out_dir, marks=path)
+                marks = json.loads(path.read_text())
+                marks["wall"] = wall
+                runs.setdefault((label, cname), []).append(marks)
+    rows = []
+    for label, _ in configs:
+        for cname, _ in codes:
+            got = runs[(label, cname)]
+
+            def med(key, got=got):
+                return float(np.median([m.get(key, 0.0) for m in got]))
+
+            wall = med("wall")
+            known = sum(med(k) for k in STAGE_COLUMNS)
+            rows.append([label, cname, f"{wall:.2f} s", f"{wall - med('process'):.2f}"]
+                        + [f"{med(k):.2f}" for k in STAGE_COLUMNS]
+                        + [f"{wall - (wall - med('process')) - known:.2f}", f"{med('kernels'):.2f}"])  # fmt: skip
+    C.print_table(
+        f"{name}: wall seconds per stage (perf_counter marks, median of {repeats}), "
+        f"load average now {os.getloadavg()[0]:.1f}",
+        ["bake", "code", "wall", "interpreter start"] + STAGE_COLUMNS + ["other", "of which loading kernels"],
+        rows,
+        note="imports: the CLI's start to the bake's (numba and embreex load later, in the stages "
+        "that first use them); loading kernels: numba loading its cached kernels, inside the stages.",
+    )
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--big", action="store_true", help="also the ~3.7M-vertex scene")
@@ -292,6 +421,8 @@ def main(argv=None) -> int:
     p.add_argument("--repeats", type=int, default=2)
     p.add_argument("--threads", type=int, default=os.cpu_count() or 1)
     p.add_argument("--no-profile", action="store_true", help="skip the stage shares")
+    p.add_argument("--stages", action="store_true", help="stage wall times from perf_counter "
+                   "marks (median of --repeats runs) instead of cProfile's shares")  # fmt: skip
     p.add_argument("--big-rows", default="", help="comma-separated labels: only these rows on "
                    "the larger scenes (e.g. 'embree --rays 1,embree --rays 16')")  # fmt: skip
     p.add_argument("--no-libigl", action="store_true", help="skip the libigl comparison")
@@ -300,7 +431,8 @@ def main(argv=None) -> int:
     configs = CONFIGS
     if args.only:
         wanted = [w.strip() for w in args.only.split(",") if w.strip()]
-        configs = [c for c in CONFIGS if any(w in c[0] for w in wanted)]
+        labels = [c[0] for c in CONFIGS]  # a whole label picks its row alone ("rays 1", not 16)
+        configs = [c for c in CONFIGS if any(w == c[0] or (w not in labels and w in c[0]) for w in wanted)]
         if not configs:
             p.error(f"--only {args.only!r} matches no row of {[c[0] for c in CONFIGS]}")
     from aobake.constants import CHUNK_RAYS
@@ -376,7 +508,9 @@ def main(argv=None) -> int:
             )
             if name == "721k" and libigl:
                 igl_table(ply, codes, args.repeats, out_dir, n_vertices)
-            if not args.no_profile and name == "721k":
+            if args.stages and name == "721k":
+                stage_table(name, ply, configs, codes, args.repeats, out_dir)
+            elif not args.no_profile and name == "721k":
                 prof_rows = []
                 for label, bake_args in configs:
                     for cname, code in codes:

@@ -136,6 +136,34 @@ def test_buffer_upload_traces_as_triangle_mesh(monkeypatch, offset, scale):
     assert all(np.array_equal(a[k], b[k]) for k in ("primID", "tfar", "Ng", "u", "v"))
 
 
+def test_background_build_answers_as_a_build_now(monkeypatch):
+    # Tracer.build(background=True) has Embree build the BVH on a thread of its own (the
+    # GIL released) and the first query wait for it: the same triangles, every answer the
+    # same bit for bit; a failure in that thread is raised by the query; where the
+    # buffers cannot be filled through numpy the build happens at once.
+    from aobake import tracing
+
+    s, _ = scenes.sphere_on_ground(0.5, 3, gap=0.0, cells=12)
+    now = Tracer(s.positions, s.faces)
+    later = Tracer(s.positions, s.faces, deferred=True).build(background=True)
+    assert later._building is not None and later._building[0].name == "embree-build"
+    rng = np.random.default_rng(5)
+    org = now.frame(now.local[rng.integers(0, s.n_vertices, 20000)] * (1 + 1e-3))
+    dirs = rng.normal(size=org.shape).astype(np.float32)
+    a, b = later.intersect(org, dirs, np.full(len(org), 0.3)), now.intersect(org, dirs, np.full(len(org), 0.3))
+    assert later._building is None and all(np.array_equal(a[k], b[k]) for k in ("primID", "tfar", "Ng", "u", "v"))
+    assert (later.occluded(org, dirs) == now.occluded(org, dirs)).all() and 0.05 < (a["primID"] >= 0).mean() < 0.95
+    assert later.build() is later and (later.occluded(org, dirs) == now.occluded(org, dirs)).all()
+
+    monkeypatch.setattr(tracing, "_commit", lambda scene, device, outcome: outcome.append(MemoryError("no room")))
+    failed = Tracer(s.positions, s.faces, deferred=True).build(background=True)
+    with pytest.raises(MemoryError, match="no room"):
+        failed.occluded(org, dirs)
+    monkeypatch.setattr(tracing, "_api", False)  # another embreex build: TriangleMesh, built now
+    fallback = Tracer(s.positions, s.faces, deferred=True).build(background=True)
+    assert fallback._building is None and (fallback.occluded(org, dirs) == now.occluded(org, dirs)).all()
+
+
 def _scene_with_variety():
     s, _ = scenes.sphere_on_ground(0.5, 3, gap=0.0, cells=12)
     return s

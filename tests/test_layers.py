@@ -202,3 +202,20 @@ def test_bake_without_fields_loads_no_field_code():
     assert field_code <= {"aobake.methods.fields.options"}, sorted(field_code)
     loaded = _loaded_after("import aobake.pipeline as p; p._load_fields([])")
     assert "aobake.kernels.field_eval" not in loaded
+
+
+def test_kernels_load_without_scipy_linalg():
+    # numba's arraymath imports scipy.linalg (~0.2 s) only to learn that BLAS exists;
+    # aobake.kernels answers that (as numba would) without the import: a kernel loads
+    # without it, numba still knows BLAS, and np.dot in a kernel still uses it
+    code = (
+        "import sys, numpy as np; from aobake.kernels import topology as t; "
+        "t.longest_edges(np.eye(3), np.array([[0, 1, 2]])); "
+        "print('scipy.linalg' in sys.modules); "
+        "import numba.np.arraymath as a, numba.np.linalg as l; print(a._HAVE_BLAS); "
+        "print(a.ensure_blas is l.ensure_blas and l.ensure_blas.__module__ == 'numba.np.linalg'); "
+        "from numba import njit; f = njit(lambda a, b: np.dot(a, b)); "
+        "print(f(np.ones((2, 3)), np.ones((3, 2)))[0, 0], 'scipy.linalg' in sys.modules)"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.split() == ["False", "True", "True", "3.0", "True"], out.stdout

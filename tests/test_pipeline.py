@@ -99,3 +99,34 @@ def test_failure_in_second_output_leaves_neither(tmp_path, monkeypatch):
     with pytest.raises(aobake.errors.OutputError, match=r"^a\.usda: cannot write \(disk full\)$"):
         aobake.bake_file(src, [tmp_path / "a.ply", tmp_path / "a.usda"], n_rays=8)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["s.ply"]
+
+
+@pytest.mark.parametrize("light", [False, True])
+def test_bake_file_builds_the_embree_scene_during_the_normals(tmp_path, monkeypatch, light):
+    # An embree bake starts its Embree scene (tracing.start_scene) once the mesh is read,
+    # before the normals, and traces that very scene (its AO and, lit, its light): the
+    # files are the bytes of a bake that builds it after them (EARLY_SCENE_MAX_VERTICES 0)
+    import aobake.constants
+    import aobake.mesh
+    import aobake.tracing
+    from aobake.methods.embree import estimator
+    from aobake.methods.embree import light as light_module
+
+    s, _ = scenes.sphere_on_ground(0.5, 2, cells=4)
+    src = tmp_path / "s.ply"
+    trimesh.Trimesh(s.positions, s.faces, process=False).export(src)
+    events, traced = [], []
+    start, normals, tracer_for = aobake.tracing.start_scene, aobake.mesh.angle_weighted_normals, estimator.tracer_for
+    monkeypatch.setattr(aobake.tracing, "start_scene", lambda p, f: events.append(start(p, f)) or events[-1])
+    monkeypatch.setattr(aobake.mesh, "angle_weighted_normals", lambda p, f: events.append("normals") or normals(p, f))
+    for module in (estimator, light_module):
+        monkeypatch.setattr(module, "tracer_for", lambda *a, **k: traced.append(tracer_for(*a, **k)) or traced[-1])
+    extra = {"lights": ["distant:0,-1,0:2"]} if light else {}
+    aobake.bake_file(src, tmp_path / "early.ply", n_rays=8, seed=1, **extra)
+    assert len(events) == 2 and events[1] == "normals" and traced == [events[0][2]] * (2 if light else 1)
+    assert events[0][0] is not None and traced[0]._building is None and traced[0]._embree is not None
+    monkeypatch.setattr(aobake.constants, "EARLY_SCENE_MAX_VERTICES", 0)
+    aobake.bake_file(src, tmp_path / "late.ply", n_rays=8, seed=1, **extra)
+    assert len(events) == 3 and (tmp_path / "early.ply").read_bytes() == (tmp_path / "late.ply").read_bytes()
+    aobake.bake_file(src, tmp_path / "bunnell.ply", method="bunnell")
+    assert len(events) == 4  # no Embree scene for a method that traces none

@@ -63,7 +63,7 @@ INPUT_FORMATS = {
 }
 
 
-def load_mesh(path: str | Path, *, time: float | None = None) -> Surface:
+def load_mesh(path: str | Path, *, time: float | None = None, prepare=None) -> Surface:
     """Read a mesh file into a :class:`Surface`, keeping its vertices exactly.
 
     Vertex count and order are the file's: duplicate, unreferenced and degenerate data
@@ -83,6 +83,10 @@ def load_mesh(path: str | Path, *, time: float | None = None) -> Surface:
         default time; a scene whose geometry has only time samples is read at its
         earliest sample, see :func:`aobake.io.usd.read_parts`). ``metadata["time"]``
         says which time was read.
+    prepare : callable, optional
+        ``prepare(positions, faces)``, called with the surface's arrays once they are
+        read and checked, before its normals are computed
+        (:func:`aobake.mesh.assemble_surface`).
 
     Returns
     -------
@@ -136,7 +140,7 @@ def load_mesh(path: str | Path, *, time: float | None = None) -> Surface:
         raise InputError(path, f"cannot read file: {exc.strerror or short_reason(exc)}") from exc
     except Exception as exc:  # any loader failure becomes a one-line InputError
         raise InputError(path, f"cannot read as {fmt}: {short_reason(exc)}") from exc
-    return assemble_surface(raw, path, metadata)
+    return assemble_surface(raw, path, metadata, prepare)
 
 
 #: Suffixes :func:`read_bake` understands, and the reader family for each.

@@ -20,9 +20,14 @@ METHODS = ("embree", "bunnell")
 #: cluster tree couple every vertex.
 SPLITTABLE = ("embree",)
 
+#: Methods that trace the whole surface through one Embree scene
+#: (``tracing.tracer_for(surface.positions, surface.faces)``): a bake may start building
+#: it before they run (:func:`aobake.tracing.start_scene`).
+WHOLE_SCENE = ("embree",)
+
 #: Methods that compute a lit scene's light (direct and bounced) besides AO:
 #: ``run_light(surface, shading, options, progress, indirect=...)``.
-LIGHTING = ("embree",)
+LIGHTING = ("embree", "bunnell")
 
 
 @dataclass(frozen=True)
