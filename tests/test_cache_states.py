@@ -15,8 +15,13 @@ import aobake.kernels
 
 BENCH = Path(__file__).resolve().parents[1] / "bench"
 
-# the only kernels allowed fastmath: the tree pass and its vectorised list sums
+# the only kernels allowed fastmath: the tree pass and its vectorised list sums, and the
+# light transfer's tree gather with its list sums (inlined into it alone; same bits compiled
+# or loaded from the cache, checked in fresh interpreters)
 FASTMATH_KERNELS = {
+    "transfertree.gather_tree",
+    "transfertree.near_sums",
+    "transfertree.far_sums",
     "treepass.thread_share",
     "treepass.hierarchy_pass_inlined",
     "listsums.direction_sums",

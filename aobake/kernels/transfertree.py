@@ -110,8 +110,8 @@ def node_light(normals, areas, radiance, skip, start, stop, light):
 
 # Rows of a bucket's list buffers (float32, one row per quantity so each receiver's sums
 # are contiguous, branch-free loops that LLVM vectorises, 1.65x faster than float64):
-# near disks (centre, normal, area, radiance; the disk's vertex in a separate int64
-# array) and far nodes (centre, the node's light row). Centres are stored relative to
+# near disks (centre, normal, area, radiance, keep: 1, or 0 while the receiver whose own
+# disk or near-field cell it is sums the list) and far nodes (centre, the node's light row). Centres are stored relative to
 # the bucket's centre (subtracted in float64), so float32 keeps their small differences.
 B_X, B_Y, B_Z, B_MX, B_MY, B_MZ, B_A, B_L, B_KEEP = 0, 1, 2, 3, 4, 5, 6, 7, 10
 NEAR_ROWS = 11
@@ -119,10 +119,11 @@ F_X, F_Y, F_Z, F_P, F_W, F_T = 0, 1, 2, 3, 6, 15
 FAR_ROWS = 21
 
 @njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
-def near_sums(buf, own, n_near, i, px, py, pz, nx, ny, nz):
-    """RGB sums of the exact disk terms of ``buf[:, :n_near]`` at receiver i (as
-    ``transfer.gather``: nothing from its own disk, coincident disks or either side
-    facing away), each times its B_KEEP row (0 for the receiver's near-field cells)."""
+def near_sums(buf, n_near, px, py, pz, nx, ny, nz):
+    """RGB sums of the exact disk terms of ``buf[:, :n_near]`` at a receiver (as
+    ``transfer.gather``: nothing from coincident disks or either side facing away), each
+    times its B_KEEP row (the caller sets 0 for the receiver's own disk and its near-field
+    cells)."""
     s0 = ZERO32
     s1 = ZERO32
     s2 = ZERO32
@@ -135,7 +136,7 @@ def near_sums(buf, own, n_near, i, px, py, pz, nx, ny, nz):
         cr = max(nx * dx + ny * dy + nz * dz, ZERO32)
         ce = max(-(buf[B_MX, t] * dx + buf[B_MY, t] * dy + buf[B_MZ, t] * dz), ZERO32)
         w = PI32 * a * ce * cr / (r2 * (PI32 * r2 + a))
-        w = w * buf[B_KEEP, t] if (r2 > COINCIDENT32 * a and own[t] != i) else ZERO32
+        w = w * buf[B_KEEP, t] if r2 > COINCIDENT32 * a else ZERO32
         s0 += w * buf[B_L, t]
         s1 += w * buf[B_L + 1, t]
         s2 += w * buf[B_L + 2, t]
@@ -179,7 +180,7 @@ def far_sums(buf, n_far, px, py, pz, nx, ny, nz):
 
 @njit(cache=True, fastmath=FASTMATH, error_model="numpy", parallel=True)
 def gather_tree(points, normals, recv_order, bucket_start, bounds, n_chunks, skip, start, stop, geometry,
-                light, e_pos, e_nrm, e_area, e_rad, e_own, cell_start, cell_col, cell_val, out):
+                light, e_pos, e_nrm, e_area, e_rad, own_pos, cell_start, cell_col, cell_val, out):
     """``out[i]``: the irradiance of :func:`aobake.kernels.transfer.gather` at every receiver,
     through the tree.
 
@@ -211,8 +212,9 @@ def gather_tree(points, normals, recv_order, bucket_start, bounds, n_chunks, ski
     e_pos, e_nrm : (k, 3) float64
     e_area : (k,) float64
     e_rad : (k, 3) float64
-    e_own : (k,) int64
-        Vertex of each disk; all in tree order.
+        All in tree order.
+    own_pos : (n,) int64
+        Tree position of each vertex's own disk (-1: none), which does not light it.
     cell_start, cell_col, cell_val
         The near field (:func:`near_cells`): receiver i's disks ``cell_col[cell_start[i]:
         cell_start[i + 1]]`` (tree positions) give ``cell_val`` times their radiance instead
@@ -221,11 +223,10 @@ def gather_tree(points, normals, recv_order, bucket_start, bounds, n_chunks, ski
         Overwritten.
     """
     m = skip.shape[0]
-    k = e_own.shape[0]
+    k = e_area.shape[0]
     nb = bucket_start.shape[0] - 1
     for chunk in prange(n_chunks):
         near_buf = np.empty((NEAR_ROWS, k), dtype=np.float32)
-        near_own = np.empty(k, dtype=np.int64)
         near_t = np.empty(k, dtype=np.int64)
         pos_of = np.zeros(k, dtype=np.int64)
         far_buf = np.empty((FAR_ROWS, m), dtype=np.float32)
@@ -281,7 +282,6 @@ def gather_tree(points, normals, recv_order, bucket_start, bounds, n_chunks, ski
                             near_buf[B_L + c, n_near] = e_rad[t, c]
                         near_buf[B_A, n_near] = e_area[t]
                         near_buf[B_KEEP, n_near] = ONE32
-                        near_own[n_near] = e_own[t]
                         near_t[n_near] = t
                         pos_of[t] = n_near
                         n_near += 1
@@ -304,15 +304,19 @@ def gather_tree(points, normals, recv_order, bucket_start, bounds, n_chunks, ski
                 nx = np.float32(nx)
                 ny = np.float32(ny)
                 nz = np.float32(nz)
-                # the receiver's near-field disks leave the disk sums (a culled one is not
-                # listed, and its disk term is 0) and give their cells' terms instead
+                # the receiver's own disk and its near-field disks leave the disk sums (one
+                # not listed was culled: its disk term is 0); the latter give their cells'
+                # terms instead
+                t = own_pos[i]
+                if t >= 0 and pos_of[t] < n_near and near_t[pos_of[t]] == t:
+                    near_buf[B_KEEP, pos_of[t]] = ZERO32
                 for e in range(cell_start[i], cell_start[i + 1]):
                     t = cell_col[e]
                     q = pos_of[t]
                     if q < n_near and near_t[q] == t:
                         near_buf[B_KEEP, q] = ZERO32
                 f0, f1, f2 = far_sums(far_buf, n_far, px, py, pz, nx, ny, nz)
-                n0, n1, n2 = near_sums(near_buf, near_own, n_near, i, px, py, pz, nx, ny, nz)
+                n0, n1, n2 = near_sums(near_buf, n_near, px, py, pz, nx, ny, nz)
                 c0 = 0.0
                 c1 = 0.0
                 c2 = 0.0
@@ -325,6 +329,9 @@ def gather_tree(points, normals, recv_order, bucket_start, bounds, n_chunks, ski
                     q = pos_of[t]
                     if q < n_near and near_t[q] == t:
                         near_buf[B_KEEP, q] = ONE32
+                t = own_pos[i]
+                if t >= 0 and pos_of[t] < n_near and near_t[pos_of[t]] == t:
+                    near_buf[B_KEEP, pos_of[t]] = ONE32
                 out[i, 0] = np.float64(f0) + np.float64(n0) + c0
                 out[i, 1] = np.float64(f1) + np.float64(n1) + c1
                 out[i, 2] = np.float64(f2) + np.float64(n2) + c2

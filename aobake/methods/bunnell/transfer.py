@@ -132,6 +132,8 @@ class TransferScene:
         self._e_pos = np.ascontiguousarray(elements.positions[order])
         self._e_nrm = np.ascontiguousarray(elements.normals[order])
         self._e_area = np.ascontiguousarray(elements.areas[order])
+        self._own_pos = np.full(self.n_vertices, -1, dtype=np.int64)  # each vertex's disk in tree order
+        self._own_pos[order] = np.arange(order.shape[0])
         g = tree.geometry
         b = g[:, 3]
         size = np.maximum(g[:, 4], math.pi * b**2)
@@ -198,7 +200,7 @@ class TransferScene:
         _kt2.gather_tree(
             self._points, self._normals, self._recv_order, self._bucket_start, self._bounds,
             min(TRANSFER_CHUNKS, n_buckets), tree.skip, tree.start, tree.stop, self._geometry,
-            light, self._e_pos, self._e_nrm, self._e_area, e_rad, self._order, *self._cells, out,
+            light, self._e_pos, self._e_nrm, self._e_area, e_rad, self._own_pos, *self._cells, out,
         )  # fmt: skip
         return out
 
