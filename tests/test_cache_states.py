@@ -18,6 +18,7 @@ BENCH = Path(__file__).resolve().parents[1] / "bench"
 # the only kernels allowed fastmath: the tree pass and its vectorised list sums
 FASTMATH_KERNELS = {
     "treepass.thread_share",
+    "treepass.thread_share_unbinned",
     "treepass.hierarchy_pass_inlined",
     "listsums.direction_sums",
     "listsums.direction_sums_flat",
