@@ -123,9 +123,11 @@ def test_each_kernel_compiled_once():
     B.variant_ao(touching_spheres(), passes=2)
     B.variant_ao(touching_spheres(), passes=2, exact=True)
     B.variant_ao(touching_spheres(), measure="uniform", max_distance=0.5)
+    B.variant_ao(touching_spheres())
     for kernel in (
         K.brute_force_pass,
         KT.thin_pass,
+        KT.thin_pass_unbinned,
         KT.hierarchy_pass_inlined,
         KTW.bucket_bounds,
         KH.build_tree,

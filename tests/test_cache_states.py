@@ -23,6 +23,7 @@ FASTMATH_KERNELS = {
     "transfertree.near_sums",
     "transfertree.far_sums",
     "treepass.thread_share",
+    "treepass.thread_share_unbinned",
     "treepass.hierarchy_pass_inlined",
     "listsums.direction_sums",
     "listsums.direction_sums_flat",

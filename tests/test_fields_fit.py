@@ -98,6 +98,20 @@ def test_fit_does_not_depend_on_threads(box_setup):
     np.testing.assert_array_equal(c.texels, d.texels)
 
 
+def test_fit_does_not_depend_on_chunks(box_setup, monkeypatch):
+    """The texel fit runs per chunk of texels on worker threads: one texel per call and
+    all texels in one call give the same bits (each texel is fitted on its own)."""
+    from aobake.methods.fields import fit as fit_module
+
+    box, _ = box_setup
+    got = []
+    for task in (1, 10**6):
+        monkeypatch.setattr(fit_module, "_FIT_TASK", task)
+        got.append(fit_field(box, resolution=3, radial_samples=5, raster_size=16))
+    np.testing.assert_array_equal(got[0].texels, got[1].texels)
+    np.testing.assert_array_equal(got[0].residuals, got[1].residuals)
+
+
 def test_flat_plate_has_empty_directions_and_no_nan():
     gp, gf = scenes.ground_grid(1.0, 2)
     plate = surface_from_arrays(gp, gf)

@@ -141,3 +141,18 @@ def test_result_does_not_depend_on_threads():
     b = raster_occlusion(positions, faces, points, size=32, threads=2)
     np.testing.assert_array_equal(a[0], b[0])
     np.testing.assert_array_equal(a[1], b[1])
+
+
+def test_result_does_not_depend_on_chunks(monkeypatch):
+    """Points are drawn per chunk on worker threads: one point per call and all in one
+    call give the same bits."""
+    import aobake.methods.fields.raster as raster_module
+
+    positions, faces = _scenes()["annulus"]
+    points = np.random.default_rng(3).normal(size=(40, 3)) * 2.0
+    got = []
+    for task in (1, 10**6):
+        monkeypatch.setattr(raster_module, "_TASK", task)
+        got.append(raster_occlusion(positions, faces, points, size=16))
+    np.testing.assert_array_equal(got[0][0], got[1][0])
+    np.testing.assert_array_equal(got[0][1], got[1][1])
