@@ -405,7 +405,7 @@ def stage_table(name: str, ply: Path, configs, codes, repeats: int, out_dir: str
     C.print_table(
         f"{name}: wall seconds per stage (perf_counter marks, median of {repeats}), "
         f"load average now {os.getloadavg()[0]:.1f}",
-        ["bake", "code", "wall", "interpreter start"] + STAGE_COLUMNS + ["other", "of which loading kernels"],
+        ["bake", "code", "wall", "interpreter start + end"] + STAGE_COLUMNS + ["other", "of which loading kernels"],
         rows,
         note="imports: the CLI's start to the bake's (numba and embreex load later, in the stages "
         "that first use them); loading kernels: numba loading its cached kernels, inside the stages.",
