@@ -106,6 +106,12 @@ NEAR_PLANE_REL = 1e-6
 # faces are never taken as edge-on; 1e-4 edge lengths changes no other term measurably.
 NEAR_OFFSET_REL = 1e-4
 
+# The disk method's light: each area light (and a scene's emitting triangles together) is
+# cut into about this many emitting disks of equal area. The transfer's error falls about
+# 4x per halving of a disk's size (docs/bunnell-light.md): 256 cells keep a light's own
+# error below 1% at distances above ~1/10 of its size, at a cost the vertex disks dwarf.
+LIGHT_DISKS = 256
+
 # An emitter closer to the receiver than sqrt(COINCIDENT_REL * A) is treated as the same
 # point (split vertices share a position) and skipped when its disk is used: relative to
 # the emitter's own size, so the test is scale invariant; 1e-12 means r < 1e-6 disk radii.

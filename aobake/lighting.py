@@ -156,10 +156,12 @@ def plan_for(surface: Surface, shading: Shading, method: str, options: dict, eff
             shading,
             effects=effects,
             bounces=opts.bounces,
-            ao_rays=opts.n_rays,
-            area_samples=opts.light_samples,
-            cone_samples=opts.light_samples,
-            indirect_rays=opts.indirect_rays,
+            ao_rays=getattr(opts, "n_rays", 0),
+            # the disk method: one ray per point, spot or sharp distant light; none for
+            # area lights, emitters and bounces (the transfer carries them)
+            area_samples=getattr(opts, "light_samples", 0),
+            cone_samples=getattr(opts, "light_samples", 1),
+            indirect_rays=getattr(opts, "indirect_rays", 0),
         )
     except ValueError as exc:
         raise InputError(surface.source, str(exc)) from None
@@ -228,16 +230,18 @@ def custom_data(job: LightJob, options: dict, method: str) -> dict:
     out = {
         "effects": ", ".join(job.plan.effects),
         "lights": ", ".join(used) or "none",
-        "light_samples": opts.light_samples,
         "albedo": job.shading.sources.get("albedo", ""),
     }
+    if hasattr(opts, "light_samples"):
+        out["light_samples"] = opts.light_samples
     if skipped:
         out["lights_skipped"] = ", ".join(skipped)
     if job.plan.emitting_faces:
         out["emitting_triangles"] = job.plan.emitting_faces
     if "indirect" in job.plan.effects:
         out["bounces"] = opts.bounces
-        out["indirect_rays"] = opts.indirect_rays
+        if hasattr(opts, "indirect_rays"):
+            out["indirect_rays"] = opts.indirect_rays
     if job.exposure:
         out["exposure"] = job.exposure
     return out
@@ -246,4 +250,5 @@ def custom_data(job: LightJob, options: dict, method: str) -> dict:
 def summary(job: LightJob, totals: LightTotals) -> str:
     """The light's part of the bake's summary line (its rays are in the bake's total)."""
     rays = totals.shadow_rays + totals.path_rays
-    return job.plan.summary() + f" ({rays / 1e6:.3f} M of the rays for light, {totals.seconds:.2f} s)"
+    cost = f"{rays / 1e6:.3f} M of the rays" if rays else "no rays"
+    return job.plan.summary() + f" ({cost} for light, {totals.seconds:.2f} s)"

@@ -178,6 +178,11 @@ def max_distance_option():
     )
 
 
+def bounces_option():
+    """``--bounces``: the same field, default and help for every method that computes light."""
+    return option(1, "Indirect bounces of light (lit scenes; 0 = direct light only).", kind=int, low=0, high=64)
+
+
 def seed_option():
     return option(0, "Random seed.", kind=int, low=0, high=2**63 - 1)
 

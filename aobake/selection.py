@@ -12,6 +12,7 @@ from __future__ import annotations
 import fnmatch
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
+from pathlib import Path
 
 import numpy as np
 
@@ -128,11 +129,17 @@ def _stored_ao(surface: Surface):
         if isinstance(column, np.ndarray) and len(surface.parts) == 1:
             yield surface.parts[0], column
     elif meta.get("format") == "USD" and meta.get("path"):
-        from pxr import Usd, UsdGeom
+        from pxr import Sdf, Usd, UsdGeom
+
+        from .io.usd import _open_fresh
 
         time = meta.get("time")
         code = Usd.TimeCode.Default() if time is None else Usd.TimeCode(time)
-        stage = Usd.Stage.Open(str(meta["path"]))
+        # the stage the mesh reader opened (within a bake), else fresh from disk: never a
+        # stale layer the registry still holds for the path
+        stage = _open_fresh(Path(meta["path"]), Sdf, Usd)
+        if stage is None:
+            return
         for part in surface.parts:
             prim = stage.GetPrimAtPath(part.prim_path) if part.prim_path else None
             primvar = UsdGeom.PrimvarsAPI(prim).GetPrimvar("ao") if prim else None

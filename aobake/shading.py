@@ -236,3 +236,92 @@ def vertex_means(faces: np.ndarray, face_values: FloatArray, n_vertices: int) ->
     rows = np.repeat(np.asarray(face_values, dtype=np.float64), faces.shape[1], axis=0)
     total = np.stack([np.bincount(corners, weights=rows[:, c], minlength=n_vertices) for c in range(rows.shape[1])], axis=1)
     return total / np.maximum(count, 1.0)[:, None]
+
+
+@dataclass(frozen=True)
+class LightStats:
+    """What one light cost and skipped (``name`` "emitters" for the emitting triangles).
+
+    Attributes
+    ----------
+    name : str
+    behind, cone, range, no_normal : int
+        Receivers (vertices) it cannot reach, by reason: behind the tangent plane (or
+        on the back of a one-sided light), outside a spot's outer cone, beyond
+        ``range``, vertex without a normal. They cost no ray.
+    shadow_rays : int
+        Shadow rays it cast from the vertices (direct light; a dome's are the paths'
+        first rays, counted in ``n_bounce_rays``).
+    """
+
+    name: str
+    behind: int = 0
+    cone: int = 0
+    range: int = 0
+    no_normal: int = 0
+    shadow_rays: int = 0
+
+    @property
+    def skipped(self) -> int:
+        return self.behind + self.cone + self.range + self.no_normal
+
+
+@dataclass(frozen=True)
+class LightResult:
+    """What a method's light transport returns (``aobake.methods.run_light``: the reference's
+    ``irradiance``, the disk method's transfer): per-vertex irradiance on the side the
+    normal points to.
+
+    Attributes
+    ----------
+    direct, indirect : (n, 3) float64 >= 0
+        Linear RGB irradiance in the scene's light units: straight from the lights,
+        emitters and dome; and after 1..K bounces.
+    error : (n, 3) float64
+        95% half-width of the estimate of direct + indirect (per channel); zero for the
+        disk method, which draws no samples (its bias is measured, docs/bunnell-light.md).
+    n_shadow_rays : int
+        Shadow rays cast from the vertices (direct light).
+    n_bounce_rays : int
+        Path rays (their first rays included: they also see the dome) and the shadow
+        rays cast from the paths' hit points.
+    lights : tuple of LightStats
+        One per ``shading.lights``, then one for the emitting triangles.
+    samples : (n,) int64
+        Samples per area light taken at each vertex (fewer than ``n_samples`` where
+        ``tolerance`` stopped it early).
+    seconds : float
+    contacts : int
+    negative : int
+        Vertices whose light would have gone negative and was set to 0 (the disk
+        method's shadow subtraction; always 0 for the reference).
+    """
+
+    direct: np.ndarray
+    indirect: np.ndarray
+    error: np.ndarray
+    n_shadow_rays: int
+    n_bounce_rays: int
+    lights: tuple
+    samples: np.ndarray
+    seconds: float
+    contacts: int
+    negative: int = 0
+
+    @property
+    def irradiance(self) -> np.ndarray:
+        return self.direct + self.indirect
+
+
+def check_shading(surface, shading: Shading) -> None:
+    """ValueError unless ``shading``'s arrays fit ``surface`` and are finite, albedo in
+    [0, 1] and emission >= 0 (a reader's bug, not a user's file: readers check those)."""
+    m, n = surface.n_faces, surface.n_vertices
+    for name, rows in (("face_albedo", m), ("face_emission", m), ("vertex_albedo", n), ("vertex_emission", n)):
+        arr = np.asarray(getattr(shading, name))
+        if arr.shape != (rows, 3):
+            raise ValueError(f"shading.{name} has shape {arr.shape}, the surface needs ({rows}, 3)")
+        if not np.isfinite(arr).all() or arr.min(initial=0.0) < 0:
+            raise ValueError(f"shading.{name} has negative or non-finite values")
+    if np.asarray(shading.face_albedo).max(initial=0.0) > 1:
+        raise ValueError("shading.face_albedo above 1 would add energy at every bounce")

@@ -4,17 +4,25 @@ on the bundled Cornell-like box (its RectLight, and the same light as an emissiv
 and coverage of the per-vertex error estimate.
 
     PYTHONPATH=. python bench/bench_light.py [--repeats 3] [--threads 2]
+    PYTHONPATH=. python bench/bench_light.py --against CHECKOUT [--rounds 6]
 
 Prints ratios measured in one run (goals: throughput >= 0.9x the AO rays', relative RMSE
 <= 2%, coverage >= 95%), the throughput also as CPU time a ray on one thread (the
 work a ray costs, steadier than wall time on a shared machine); docs/bench_light.md
-records runs.
+records runs. ``--against`` measures only the throughput, of another checkout (say main)
+and of this one, alternating in fresh processes round after round so the load the
+machine carries hits both alike, and prints each round's ratios and their medians.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import os
+import subprocess
+import sys
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -113,16 +121,69 @@ def trace_only(surface, repeats):
     return best
 
 
+def ratios(surface, shading, repeats, threads):
+    """Wall rates (all threads) and CPU time a ray (one thread) as ratios to the AO's."""
+    rates = throughput(surface, shading, repeats, threads)
+    cpu = cpu_per_ray(surface, shading, repeats)
+    return {
+        "wall shadow": rates["shadow"] / rates["ao"],
+        "wall bounce": rates["bounce"] / rates["ao"],
+        "cpu shadow": cpu["ao"] / cpu["shadow"],
+        "cpu bounce": cpu["ao"] / cpu["bounce"],
+        "ao rays/s": rates["ao"],
+        "cpu ao ns": cpu["ao"],
+        "aobake": str(Path(sys.modules["aobake"].__file__).parent.parent),
+    }
+
+
+def against(other: str, rounds: int, repeats: int, threads):
+    """Throughput ratios of ``other`` (a checkout) and of this one, alternating in fresh
+    processes: the first run of each compiles nothing that is cached."""
+    this = str(Path(__file__).resolve().parent.parent)
+    other = str(Path(other).resolve())
+    extra = ["--repeats", str(repeats)] + ([] if threads is None else ["--threads", str(threads)])
+    runs = {"other": [], "this": []}
+    print(f"load average at the start: {os.getloadavg()[0]:.1f}; other = {other}, this = {this}")
+    for r in range(rounds + 1):  # round 0 warms both numba caches and is not counted
+        for label, root in (("other", other), ("this", this)):
+            env = dict(os.environ, PYTHONPATH=root)
+            out = subprocess.run(
+                [sys.executable, __file__, "--ratios-only", *extra], env=env, check=True, capture_output=True, text=True
+            ).stdout
+            if r == 0:
+                print(f"{label}: aobake from {json.loads(out.strip().splitlines()[-1])['aobake']}")
+                continue
+            got = json.loads(out.strip().splitlines()[-1])
+            runs[label].append(got)
+            print(f"round {r} {label:5s}: wall shadow {got['wall shadow']:.3f}x, bounce {got['wall bounce']:.3f}x; "
+                  f"cpu a ray shadow {got['cpu shadow']:.3f}x, bounce {got['cpu bounce']:.3f}x "
+                  f"(AO {got['ao rays/s']:.3g} rays/s, {got['cpu ao ns']:.1f} ns)  load {os.getloadavg()[0]:.1f}", flush=True)  # fmt: skip
+    for key in ("wall shadow", "wall bounce", "cpu shadow", "cpu bounce"):
+        a = np.median([g[key] for g in runs["other"]])
+        b = np.median([g[key] for g in runs["this"]])
+        print(f"median {key}: other {a:.3f}x, this {b:.3f}x")
+    print(f"load average at the end: {os.getloadavg()[0]:.1f}")
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--threads", type=int, default=None)
     parser.add_argument("--ref-samples", type=int, default=4096)
     parser.add_argument("--ref-paths", type=int, default=16384)
+    parser.add_argument("--against", metavar="CHECKOUT", help="compare the throughput with another checkout's")
+    parser.add_argument("--rounds", type=int, default=6)
+    parser.add_argument("--ratios-only", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args()
+    if args.against:
+        return against(args.against, args.rounds, args.repeats, args.threads)
     path = DATA_DIR / "cornell_box.usda"
     surface = load_mesh(path)
     shading = read_shading(path, surface)
+    if args.ratios_only:
+        irradiance(surface, shading, n_samples=1, n_indirect=1)  # compile
+        print(json.dumps(ratios(surface, shading, args.repeats, args.threads)))
+        return None
     defaults = LightOptions()
     print(f"scene {path.name}: {surface.n_vertices} vertices, {surface.n_faces} triangles; defaults "
           f"n_samples {defaults.n_samples}, n_indirect {defaults.n_indirect}, bounces {defaults.bounces}")

@@ -57,7 +57,6 @@ from aobake.testing.scenes import (
         (dict(combine="bunnell", passes=1), "needs passes >= 2"),
         (dict(combine="hoberock", passes=1), "needs passes >= 2"),
         (dict(threads=0), "threads must be an integer >= 1"),
-        (dict(threads=10_000), r"threads must be an integer in \[1, "),
         (dict(leaf_size=0), "leaf_size must be an integer >= 1"),
     ],
 )

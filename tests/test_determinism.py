@@ -31,3 +31,16 @@ def test_threads_and_chunks_do_not_change_bits(scene, tolerance):
         other = estimate(scene, options, chunk_rays=chunk)
         np.testing.assert_array_equal(base.ao, other.ao)
         np.testing.assert_array_equal(base.rays, other.rays)
+
+
+@pytest.mark.parametrize("method", ["embree", "bunnell"])
+def test_more_threads_than_cores_run_as_the_cores_with_the_same_bits(scene, method):
+    """The library's one rule, as the CLI's --threads: a count above the core count is
+    the core count (numba cannot start more; Embree gains nothing)."""
+    from aobake.methods import run
+
+    options = {"n_rays": 32, "seed": 3} if method == "embree" else {}
+    one = run(method, scene, {**options, "threads": 1}).ao
+    np.testing.assert_array_equal(run(method, scene, {**options, "threads": 10_000}).ao, one)
+    with pytest.raises(ValueError, match="threads must be an integer >= 1"):
+        run(method, scene, {**options, "threads": 0})

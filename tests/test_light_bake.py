@@ -440,18 +440,6 @@ def test_effects_the_scene_does_not_call_for_is_one_line(runner, scene_ply, tmp_
     assert not out.exists()
 
 
-def test_bunnell_on_a_lit_scene_bakes_ao_with_a_warning(runner, tmp_path):
-    lit, ao = tmp_path / "lit.ply", tmp_path / "ao.ply"
-    r = _ok(runner, ["bake", CORNELL, "-o", lit, "--method", "bunnell"])
-    warnings = [line for line in r.stderr.splitlines() if "not baked" in line]
-    assert len(warnings) == 1 and "cornell_box.usda" in warnings[0] and "--method embree" in warnings[0]
-    _ok(runner, ["bake", CORNELL, "-o", ao, "--method", "bunnell", "--effects", "ao", "-q"])
-    assert lit.read_bytes() == ao.read_bytes()
-    r = _fail(runner, ["bake", CORNELL, "-o", lit.with_suffix(".usda"), "--method", "bunnell", "--effects", "ao,direct"])
-    _one_line(r, "cornell_box.usda", "--method bunnell computes ambient occlusion only")
-    assert not lit.with_suffix(".usda").exists()
-
-
 # -- --weld, --occluders -------------------------------------------------------------------
 
 

@@ -72,6 +72,22 @@ def test_selected_receivers_equal_the_full_bake_and_the_rest_stays_open(tmp_path
     assert (only[rest] == 1.0).all()  # no ao in the input: 1.0
 
 
+@pytest.mark.parametrize("method", ["embree", "bunnell"])
+def test_receivers_under_a_ground_plane_equal_the_full_bake_with_it(tmp_path, method):
+    surface = _parts()
+    source = _usd(tmp_path)
+    full = _bake(tmp_path, source, "full.ply", method, ground=-0.2, up_axis="Z")
+    bare = _bake(tmp_path, source, "bare.ply", method)
+    only = _bake(tmp_path, source, "ball.ply", method, ground=-0.2, up_axis="Z", receivers=("/Root/ball",))
+    ball = surface.parts[1]
+    s = slice(ball.vertex_start, ball.vertex_stop)
+    assert np.abs(full[s] - bare[s]).max() > 0.01  # the plane does shade the ball
+    np.testing.assert_array_equal(only[s], full[s])
+    rest = np.ones(surface.n_vertices, dtype=bool)
+    rest[s] = False
+    assert (only[rest] == 1.0).all()
+
+
 def test_bunnell_receivers_keep_the_input_elsewhere(tmp_path):
     surface = _parts()
     full = _bake(tmp_path, _usd(tmp_path), "full.ply", "bunnell")
@@ -119,6 +135,28 @@ def test_usd_and_gltf_inputs_keep_their_stored_ao(tmp_path):
     tet = load_mesh(source).parts[0]
     np.testing.assert_array_equal(again[: tet.vertex_stop], first[: tet.vertex_stop])
     assert not np.array_equal(again[tet.vertex_stop :], first[tet.vertex_stop :])
+
+
+def test_stored_usd_ao_is_read_from_the_file_not_a_stale_layer(tmp_path):
+    """A caller holding a stage on the input keeps its old layer registered; the ao kept at
+    vertices not baked is the file's as it is on disk now."""
+    pytest.importorskip("pxr")
+    from pxr import Usd
+
+    source = _usd(tmp_path)
+    surface = load_mesh(source)
+    held = Usd.Stage.Open(str(source))  # registers the layer holding ao = 1
+    try:
+        stored = np.linspace(0.1, 0.9, surface.n_vertices)
+        write_bake(source, _parts(), stored)  # the file on disk now holds other values
+        np.testing.assert_array_equal(kept_ao(load_mesh(source)), stored.astype(np.float32))
+        out = _bake(tmp_path, source, "ball.ply", receivers=("/Root/ball",))
+        ball = next(p for p in surface.parts if p.name == "ball")
+        rest = np.ones(surface.n_vertices, dtype=bool)
+        rest[ball.vertex_start : ball.vertex_stop] = False
+        np.testing.assert_array_equal(out[rest], stored.astype(np.float32)[rest])
+    finally:
+        del held
 
 
 def test_a_pattern_that_matches_nothing_is_one_line(tmp_path):

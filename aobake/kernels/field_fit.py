@@ -14,7 +14,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 from .field_model import (
     N_PARAMS,
@@ -377,9 +377,11 @@ def _fit_centre(radii, unit, dx, dy, dz, wts, limit, iters, c_out, work):
         c_out[0], c_out[1], c_out[2] = c0[0], c0[1], c0[2]
 
 
-@njit(cache=True, error_model="numpy", parallel=True)
+@njit(cache=True, error_model="numpy", nogil=True)
 def fit_texels(radial, samples, dirs, r0, r_far, settings, out_params, out_resid):
-    """Fit the 7 scalars of every texel to its radial samples.
+    """Fit the 7 scalars of every texel to its radial samples. Serial and ``nogil``: the
+    caller runs one call per worker thread, each on its own texels (a parallel loop
+    here cost more to compile than it saved).
 
     Parameters
     ----------
@@ -409,7 +411,7 @@ def fit_texels(radial, samples, dirs, r0, r_far, settings, out_params, out_resid
     iters_c = int(settings[1])
     y_power = settings[2]
     model = int(settings[3])
-    for t in prange(n_tex):
+    for t in range(n_tex):
         work = np.zeros((6, 4, 4))
         ok = np.zeros(m, dtype=np.bool_)
         s = np.zeros(m)

@@ -8,7 +8,7 @@ the occluded vector integral int V w dw = sum of covered texels' exact vector in
 from __future__ import annotations
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 #: Cube faces as (major axis, sign, u axis, v axis), the same layout as kernels/field_eval.py.
 FACE_AXIS = np.array([0, 0, 1, 1, 2, 2], dtype=np.int64)
@@ -192,9 +192,11 @@ def _render_point(vertices, faces, p, size, vface, vuv, cover, poly):
                 _fill_polygon(px, py, m, size, cover, face)
 
 
-@njit(cache=True, error_model="numpy", parallel=True)
-def render_points(vertices, faces, points, texel_weights, texel_vectors, block, out):
-    """Omega and int V w dw at every point by cube-map rasterization.
+@njit(cache=True, error_model="numpy", nogil=True)
+def render_points(vertices, faces, points, texel_weights, texel_vectors, out):
+    """Omega and int V w dw at every point by cube-map rasterization. Serial and
+    ``nogil``: the caller runs one call per worker thread, each on its own points (a
+    parallel loop here cost more to compile than it saved).
 
     Parameters
     ----------
@@ -206,36 +208,32 @@ def render_points(vertices, faces, points, texel_weights, texel_vectors, block, 
         Exact solid angle of each texel.
     texel_vectors : (6, S, S, 3) float64
         Exact int_texel w dw of each texel.
-    block : int
-        Points per parallel task (scratch buffers are allocated once per task).
     out : (n, 4) float64
         Written in full: Omega, then the occluded vector integral (x, y, z).
     """
     size = texel_weights.shape[1]
     n = points.shape[0]
     nv = vertices.shape[0]
-    n_blocks = (n + block - 1) // block
-    for b in prange(n_blocks):
-        cover = np.zeros((6, size, size), dtype=np.uint8)
-        vface = np.zeros(nv, dtype=np.int64)
-        vuv = np.zeros((nv, 2))
-        poly = np.zeros((11, _MAX_POLY))
-        for p in range(b * block, min(n, (b + 1) * block)):
-            cover[:] = 0
-            _render_point(vertices, faces, points[p], size, vface, vuv, cover, poly)
-            om = 0.0
-            sx = 0.0
-            sy = 0.0
-            sz = 0.0
-            for f in range(6):
-                for i in range(size):
-                    for j in range(size):
-                        if cover[f, i, j]:
-                            om += texel_weights[f, i, j]
-                            sx += texel_vectors[f, i, j, 0]
-                            sy += texel_vectors[f, i, j, 1]
-                            sz += texel_vectors[f, i, j, 2]
-            out[p, 0] = om
-            out[p, 1] = sx
-            out[p, 2] = sy
-            out[p, 3] = sz
+    cover = np.zeros((6, size, size), dtype=np.uint8)
+    vface = np.zeros(nv, dtype=np.int64)
+    vuv = np.zeros((nv, 2))
+    poly = np.zeros((11, _MAX_POLY))
+    for p in range(n):
+        cover[:] = 0
+        _render_point(vertices, faces, points[p], size, vface, vuv, cover, poly)
+        om = 0.0
+        sx = 0.0
+        sy = 0.0
+        sz = 0.0
+        for f in range(6):
+            for i in range(size):
+                for j in range(size):
+                    if cover[f, i, j]:
+                        om += texel_weights[f, i, j]
+                        sx += texel_vectors[f, i, j, 0]
+                        sy += texel_vectors[f, i, j, 1]
+                        sz += texel_vectors[f, i, j, 2]
+        out[p, 0] = om
+        out[p, 1] = sx
+        out[p, 2] = sy
+        out[p, 3] = sz

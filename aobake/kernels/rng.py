@@ -124,7 +124,20 @@ def scrambled_sobol2(index, key):
 @njit(cache=True, inline="always")
 def random2(index, key):
     """Two independent uniform numbers in [0, 1) from (key, index): plain random, no strata."""
-    h = hash2(key, np.uint64(index) + np.uint64(0x632BE59BD9B4E019))
+    return random2_hashed(index_hash(index), key)
+
+
+@njit(cache=True, inline="always")
+def index_hash(index):
+    """The part of :func:`random2`'s hash that depends on ``index`` alone (the inner
+    hash of :func:`hash2`), made once where many keys share an index."""
+    return mix64(np.uint64(index) + np.uint64(0x632BE59BD9B4E019) + np.uint64(0x9E3779B97F4A7C15))
+
+
+@njit(cache=True, inline="always")
+def random2_hashed(hashed, key):
+    """:func:`random2` (index, key) from ``hashed = index_hash(index)``: the same numbers."""
+    h = mix64(np.uint64(key) ^ hashed)
     u0 = float(h >> np.uint64(32)) * _INV32
     u1 = float(mix64(h) >> np.uint64(32)) * _INV32
     return u0, u1

@@ -304,7 +304,8 @@ def _share(w, tree, emitters, receivers, near_field, buckets, span, options, out
                 given = settle_fill(dirs, store, row, fill_mode)
                 acc[0, last] += given[0]
                 acc[1, last] += given[1]
-            for k in range(last + 1):
+            lo = last + 1 - out.shape[2]  # an out of one bin holds the totals alone
+            for k in range(lo, last + 1):
                 # the swap can leave -1 ulp where the sum is 0
-                out[i, 0, k] = max(acc[0, k], 0.0)
-                out[i, 1, k] = max(acc[1, k], 0.0)
+                out[i, 0, k - lo] = max(acc[0, k], 0.0)
+                out[i, 1, k - lo] = max(acc[1, k], 0.0)

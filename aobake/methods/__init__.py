@@ -27,7 +27,7 @@ WHOLE_SCENE = ("embree",)
 
 #: Methods that compute a lit scene's light (direct and bounced) besides AO:
 #: ``run_light(surface, shading, options, progress, indirect=...)``.
-LIGHTING = ("embree",)
+LIGHTING = ("embree", "bunnell")
 
 
 @dataclass(frozen=True)

@@ -11,7 +11,7 @@ from __future__ import annotations
 from ...lazy import exports
 from .options import BunnellOptions
 
-__all__ = ["BunnellOptions", "bunnell_ao", "run"]  # the rest: for tests, the bench, animation
+__all__ = ["BunnellOptions", "bunnell_ao", "disk_light", "run", "run_light"]  # the rest: for tests, the bench, animation
 
 # public and test-facing names -> the module that defines them
 _LAZY = {
@@ -29,6 +29,9 @@ _LAZY = {
     "combine_sides": "scheme",
     "occlusion_passes": "passes",
     "settings": "scheme",
+    "run_light": "light",
+    "disk_light": "light",
+    "emitter_disks": "light",
 }
 
 

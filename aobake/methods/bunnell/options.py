@@ -4,7 +4,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from ...options import max_distance_option, measure_option, option, threads_option, validate
+from ...options import (
+    bounces_option,
+    max_distance_option,
+    measure_option,
+    option,
+    threads_option,
+    validate,
+)
 
 
 @dataclass(frozen=True)
@@ -31,6 +38,8 @@ class BunnellOptions:
     measure : {"cosine", "uniform"}
     max_distance : float or None
         Ignore disks farther than this (mesh units); None = unbounded.
+    bounces : int
+        A lit scene's indirect bounces K (0 = direct light only); unused without light.
     threads : int or None
         numba threads for the call (default: all cores); the result does not depend on it.
     """
@@ -57,6 +66,7 @@ class BunnellOptions:
     )
     measure: str = measure_option()
     max_distance: float | None = max_distance_option()
+    bounces: int = bounces_option()
     threads: int | None = threads_option()
 
     def __post_init__(self):

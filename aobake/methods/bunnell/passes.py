@@ -152,8 +152,8 @@ class _Pass:
         modes=None,
         fill=None,
     ) -> tuple[FloatArray, FloatArray]:
-        """(n, 2, N_BINS) (front, back) sums, cumulative by distance when ``binned``
-        (else only the last bin, the total, less the direction excess when directional),
+        """(n, 2, N_BINS) (front, back) sums, cumulative by distance, when ``binned``; else
+        (n, 2, 1): the totals alone (less the direction excess when directional),
         and (n, 4) first moments ``sum (front + back term) (emitter - receiver)`` and the
         summed terms (when ``binned``, cache_mode < 2).
 
@@ -176,10 +176,10 @@ class _Pass:
         cell_weights = np.ascontiguousarray(level0 if cell_weights is None else cell_weights)
         options = self.options._replace(binned=bool(binned), leveled=leveled)
         occluders = np.ascontiguousarray(e.positions if occluders is None else occluders)
-        out = np.zeros((n, 2, _k.N_BINS))
         first = np.zeros((n, 4))
         fill = self.no_fill if fill is None else fill
         if self.tree is None:
+            out = np.zeros((n, 2, _k.N_BINS))
             if weights.ndim == 1:
                 weights = np.repeat(weights[:, None], _k.N_LEVELS, axis=1)
             disks = _s.Disks(e.positions, e.normals, e.areas, weights, occluders)
@@ -192,7 +192,7 @@ class _Pass:
                     disks, cells, e.emitter_index, self.receivers, chunk, options, out, first, fill
                 )
                 progress.advance(chunk.shape[0])
-            return out, first
+            return (out if binned else out[:, :, -1:]), first
         # only what this pass reads: level 0 unless leveled, the occluders when gated
         if leveled:
             if self.weights.shape[1] != _k.N_LEVELS:
@@ -213,6 +213,9 @@ class _Pass:
             self.moments,
             leveled,
         )
+        # the tree pass writes the totals alone where nothing reads the bins (every bin
+        # of an (n, 2, N_BINS) array would be resident: 96 bytes a vertex, not 16)
+        out = np.zeros((n, 2, _k.N_BINS if binned else 1))
         if cache_mode and not hasattr(self, "cache"):
             self.cache = np.zeros((n, 2, _k.N_BINS))
         cache = getattr(self, "cache", np.zeros((0, 2, _k.N_BINS)))

@@ -72,3 +72,193 @@ def unshadowed_irradiance(elements: DiskElements, radiance) -> np.ndarray:
         radiance[idx],
         idx,
     )
+
+
+# ---------------------------------------------------------------------------------------
+# the same transfer through the cluster tree, with a prepare / gather split for re-lighting
+
+# Default opening parameter of the tree transfer: a cluster is used whole only when every
+# receiver of a bucket is at d^2 >= theta max(A, pi b^2) (1 + OPEN_COHERENCE (1 - c)) from
+# its centre (as the AO's opening). Measured in docs/bunnell-light.md.
+DEFAULT_TRANSFER_THETA = 4.0
+# Default near-field reach (as the AO's --near): disks within sqrt(near A) of a receiver
+# give their cells' exact form factor.
+DEFAULT_TRANSFER_NEAR = 4.0
+# Buckets are dealt cyclically to this many parallel chunks (any fixed number: the result
+# does not depend on it, nor on the thread count).
+TRANSFER_CHUNKS = 64
+# Receivers per bucket (one tree walk each) and disks per leaf of the transfer's tree.
+TRANSFER_BUCKET = 128
+TRANSFER_LEAF_SIZE = 8
+
+
+def receiver_buckets(points):
+    """``(order, bucket_start)``: every receiver once, grouped into compact buckets of at
+    most TRANSFER_BUCKET (the leaves of a median-split tree over ``points``)."""
+    from ...kernels import hierarchy as _h
+    from .tree import tree_keys
+
+    n = points.shape[0]
+    perm, start, _, skip = _h.build_tree(tree_keys(points), TRANSFER_BUCKET)
+    leaves = np.flatnonzero(skip == np.arange(1, skip.shape[0] + 1))
+    return np.ascontiguousarray(perm, dtype=np.int64), np.append(start[leaves], n).astype(np.int64)
+
+
+class TransferScene:
+    """A scene prepared for repeated transfers (:func:`prepare_transfer`): the tree, the
+    disks in tree order, the nodes' centres and opening distances, the receivers' buckets
+    and the near-field cells are kept; each :meth:`gather` only sums the new radiance up
+    the tree and walks it.
+    """
+
+    def __init__(self, elements: DiskElements, tree, theta: float, near: float):
+        from ...constants import OPEN_COHERENCE
+        from ...kernels import transfertree as _kt2
+        from ...kernels import treewalk as _tw
+        from .tree import node_coherence, refit_tree
+
+        self.n_vertices = elements.n_vertices
+        self.theta = float(theta)
+        self.near = float(near)
+        self._points = np.ascontiguousarray(elements.points, dtype=np.float64)
+        self._normals = np.ascontiguousarray(elements.normals, dtype=np.float64)
+        self.tree = tree
+        if tree is None:
+            return
+        tree = refit_tree(tree, elements.positions, elements.areas)  # geometry of these disks
+        self.tree = tree
+        order = tree.order
+        self._order = order
+        self._e_pos = np.ascontiguousarray(elements.positions[order])
+        self._e_nrm = np.ascontiguousarray(elements.normals[order])
+        self._e_area = np.ascontiguousarray(elements.areas[order])
+        g = tree.geometry
+        b = g[:, 3]
+        size = np.maximum(g[:, 4], math.pi * b**2)
+        size = size * (1.0 + OPEN_COHERENCE * (1.0 - node_coherence(tree, elements.normals, elements.areas)))
+        # how far from a node's centre a receiver can be in the near field of one of its
+        # disks (a hair more, for rounding): such nodes are never used whole
+        reach = (b + np.sqrt(self.near * g[:, 5])) * (1.0 + 1e-9)
+        with np.errstate(invalid="ignore", over="ignore"):
+            open_d2 = np.maximum(self.theta * size, np.maximum(b, reach) ** 2)
+        geometry = np.zeros((tree.n_nodes, _kt2.GEOMETRY_COLS))
+        geometry[:, _kt2.G_X : _kt2.G_Z + 1] = g[:, :3]
+        geometry[:, _kt2.G_OPEN_D2] = np.where(np.isnan(open_d2), np.inf, open_d2)
+        self._geometry = geometry
+        self._recv_order, self._bucket_start = receiver_buckets(self._points)
+        self._bounds = np.zeros((self._bucket_start.shape[0] - 1, _tw.BOUND_COLS))
+        _tw.bucket_bounds(self._points, self._normals, np.zeros(self.n_vertices), self._recv_order,
+                          self._bucket_start, self._bounds)
+        self._cells = self._near_cells(elements, reach)
+
+    def _near_cells(self, elements: DiskElements, reach):
+        """The near field's sparse table (``transfertree.near_cells``), empty when near is 0."""
+        from ...kernels import transfertree as _kt2
+
+        n = self.n_vertices
+        if self.near <= 0.0:
+            return np.zeros(n + 1, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros(0)
+        tree = self.tree
+        counts = np.zeros(n, dtype=np.int64)
+        start = np.zeros(n + 1, dtype=np.int64)
+        args = (self._points, self._normals, elements.positions, elements.corner_start, elements.corners,
+                self.near, tree.skip, tree.start, tree.stop, reach, np.ascontiguousarray(tree.geometry[:, :3]),
+                self._e_pos, self._e_area, self._order)  # fmt: skip
+        _kt2.near_cells(*args, counts, start, np.zeros(0, dtype=np.int64), np.zeros(0), False)
+        np.cumsum(counts, out=start[1:])
+        col = np.empty(start[-1], dtype=np.int64)
+        val = np.empty(start[-1])
+        _kt2.near_cells(*args, counts, start, col, val, True)
+        return start, col, val
+
+    def gather(self, radiance) -> np.ndarray:
+        """(n, 3) irradiance at every vertex from every other vertex's disk, unshadowed
+        (:func:`unshadowed_irradiance` through the tree).
+
+        Parameters
+        ----------
+        radiance : (n, 3) float64 >= 0
+            Outgoing radiance of each vertex.
+        """
+        from ...kernels import transfertree as _kt2
+
+        radiance = np.asarray(radiance, dtype=np.float64)
+        if radiance.shape != (self.n_vertices, 3):
+            raise ValueError(f"radiance must be ({self.n_vertices}, 3), got {radiance.shape}")
+        if not np.all(np.isfinite(radiance)) or np.any(radiance < 0.0):
+            raise ValueError("radiance must be finite and >= 0")
+        out = np.zeros((self.n_vertices, 3))
+        if self.tree is None:
+            return out
+        tree = self.tree
+        e_rad = np.ascontiguousarray(radiance[self._order])
+        light = np.empty((tree.n_nodes, _kt2.LIGHT_COLS))  # per call: calls may run concurrently
+        _kt2.node_light(self._e_nrm, self._e_area, e_rad, tree.skip, tree.start, tree.stop, light)
+        n_buckets = self._bucket_start.shape[0] - 1
+        _kt2.gather_tree(
+            self._points, self._normals, self._recv_order, self._bucket_start, self._bounds,
+            min(TRANSFER_CHUNKS, n_buckets), tree.skip, tree.start, tree.stop, self._geometry,
+            light, self._e_pos, self._e_nrm, self._e_area, e_rad, self._order, *self._cells, out,
+        )  # fmt: skip
+        return out
+
+
+def prepare_transfer(
+    elements: DiskElements,
+    *,
+    theta: float = DEFAULT_TRANSFER_THETA,
+    near: float = DEFAULT_TRANSFER_NEAR,
+    tree=None,
+    leaf_size: int = TRANSFER_LEAF_SIZE,
+) -> TransferScene:
+    """Everything of the tree transfer that does not depend on the radiance.
+
+    Parameters
+    ----------
+    elements : DiskElements
+    theta : float > 0, optional
+        Opening parameter (larger = slower, closer to the brute-force sum; ``inf`` opens
+        every cluster and gives the brute-force sum).
+    near : float >= 0, optional
+        Disks closer than ``sqrt(near A)`` to a receiver give the exact form factor of
+        their barycentric cells (the polygons they stand for), clipped to the receiver's
+        tangent plane, instead of the disk term, as the AO's near field; 0 = disks only
+        (then ``theta = inf`` is :func:`unshadowed_irradiance`).
+    tree : ClusterTree, optional
+        A tree over ``elements.emitter_index`` (``aobake.methods.bunnell.passes.build_tree``,
+        or an earlier one for moved vertices: it is refitted); default: built here.
+    leaf_size : int, optional
+        Disks per leaf of the tree built here.
+    """
+    from .passes import build_tree
+
+    theta = float(theta)
+    if not theta > 0.0:
+        raise ValueError(f"theta must be > 0, got {theta!r}")
+    near = float(near)
+    if not (near >= 0.0 and math.isfinite(near)):
+        raise ValueError(f"near must be finite and >= 0, got {near!r}")
+    if elements.n_emitters == 0:
+        return TransferScene(elements, None, theta, near)
+    if tree is None:
+        tree = build_tree(elements, leaf_size=leaf_size)
+    elif not np.array_equal(np.sort(tree.order), elements.emitter_index):
+        raise ValueError("tree: built over other disks than these elements' emitters")
+    return TransferScene(elements, tree, theta, near)
+
+
+def tree_transfer(
+    elements: DiskElements,
+    radiance,
+    *,
+    theta: float = DEFAULT_TRANSFER_THETA,
+    near: float = DEFAULT_TRANSFER_NEAR,
+    tree=None,
+) -> np.ndarray:
+    """(n, 3) :func:`unshadowed_irradiance` through the cluster tree: clusters far enough for
+    their size (``theta``) send their summed RGB power from their centre, nearer disks
+    their exact terms, and disks within ``sqrt(near A)`` of a receiver the exact form
+    factor of their cells. One call of :func:`prepare_transfer` and
+    :meth:`TransferScene.gather`.
+    """
+    return prepare_transfer(elements, theta=theta, near=near, tree=tree).gather(radiance)

@@ -204,7 +204,8 @@ def estimate(
     (:func:`aobake.kernels.rays.ground_rays`); without it the result is unchanged."""
     t0 = time.perf_counter()
     n_rays = options.n_rays
-    threads = max(1, int(options.threads or os.cpu_count() or 1))
+    cores = os.cpu_count() or 1
+    threads = max(1, min(int(options.threads or cores), cores))  # more: no faster, more memory
     progress = progress or NullProgress()
 
     n = surface.n_vertices

@@ -12,7 +12,6 @@ import os
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
 
 import numpy as np
 
@@ -32,103 +31,13 @@ from ...ground import Ground
 from ...kernels import lights as _kl
 from ...kernels import rays as _k
 from ...kernels import topology as _topo
+from ...kernels.lights import light_table
 from ...mesh import Surface
 from ...options import build
 from ...progress import NullProgress, Progress
-from ...shading import AREA_KINDS, Light, Shading
+from ...shading import AREA_KINDS, Light, LightResult, LightStats, Shading, check_shading
 from ...tracing import trace_chunks, tracer_for
 from .options import LightOptions
-
-
-@dataclass(frozen=True)
-class LightStats:
-    """What one light cost and skipped (``name`` "emitters" for the emitting triangles).
-
-    Attributes
-    ----------
-    name : str
-    behind, cone, range, no_normal : int
-        Receivers (vertices) it cannot reach, by reason: behind the tangent plane (or
-        on the back of a one-sided light), outside a spot's outer cone, beyond
-        ``range``, vertex without a normal. They cost no ray.
-    shadow_rays : int
-        Shadow rays it cast from the vertices (direct light; a dome's are the paths'
-        first rays, counted in ``n_bounce_rays``).
-    """
-
-    name: str
-    behind: int = 0
-    cone: int = 0
-    range: int = 0
-    no_normal: int = 0
-    shadow_rays: int = 0
-
-    @property
-    def skipped(self) -> int:
-        return self.behind + self.cone + self.range + self.no_normal
-
-
-@dataclass(frozen=True)
-class LightResult:
-    """Result of :func:`irradiance`: per-vertex irradiance on the side the normal points to.
-
-    Attributes
-    ----------
-    direct, indirect : (n, 3) float64 >= 0
-        Linear RGB irradiance in the scene's light units: straight from the lights,
-        emitters and dome; and after 1..K bounces.
-    error : (n, 3) float64
-        95% half-width of the estimate of direct + indirect (per channel).
-    n_shadow_rays : int
-        Shadow rays cast from the vertices (direct light).
-    n_bounce_rays : int
-        Path rays (their first rays included: they also see the dome) and the shadow
-        rays cast from the paths' hit points.
-    lights : tuple of LightStats
-        One per ``shading.lights``, then one for the emitting triangles.
-    samples : (n,) int64
-        Samples per area light taken at each vertex (fewer than ``n_samples`` where
-        ``tolerance`` stopped it early).
-    seconds : float
-    contacts : int
-    """
-
-    direct: np.ndarray
-    indirect: np.ndarray
-    error: np.ndarray
-    n_shadow_rays: int
-    n_bounce_rays: int
-    lights: tuple
-    samples: np.ndarray
-    seconds: float
-    contacts: int
-
-    @property
-    def irradiance(self) -> np.ndarray:
-        return self.direct + self.indirect
-
-
-def light_table(lights, center: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(kinds (L,) int64, params (L, N_PARAMS) float64) of ``lights`` in the frame
-    recentred on ``center``."""
-    kinds = np.array([_kl.KIND_CODES[light.kind] for light in lights], dtype=np.int64)
-    params = np.zeros((len(lights), _kl.N_PARAMS))
-    for i, light in enumerate(lights):
-        row = params[i]
-        row[_kl.P_VALUE : _kl.P_VALUE + 3] = light.value
-        row[_kl.P_POS : _kl.P_POS + 3] = light.position - center
-        row[_kl.P_DIR : _kl.P_DIR + 3] = light.direction
-        row[_kl.P_U : _kl.P_U + 3] = light.u
-        row[_kl.P_V : _kl.P_V + 3] = light.v
-        row[_kl.P_NORMAL : _kl.P_NORMAL + 3] = light.normal
-        row[_kl.P_RADIUS] = light.radius
-        row[_kl.P_COS_HALF] = math.cos(0.5 * light.angle)
-        row[_kl.P_COS_INNER] = math.cos(light.cone_inner)
-        row[_kl.P_COS_OUTER] = math.cos(light.cone_outer)
-        row[_kl.P_RANGE] = light.range
-        row[_kl.P_SHADOW] = 1.0 if light.shadow else 0.0
-        row[_kl.P_AREA] = light.area
-    return kinds, params
 
 
 def _sampled(light: Light) -> bool:
@@ -208,10 +117,11 @@ def irradiance(
     are bit-identical for any thread count and chunking.
     """
     options = build(LightOptions, options, **changes)
-    _check_shading(surface, shading)
+    check_shading(surface, shading)
     t0 = time.perf_counter()
     progress = progress or NullProgress()
-    threads = max(1, int(options.threads or os.cpu_count() or 1))
+    cores = os.cpu_count() or 1
+    threads = max(1, min(int(options.threads or cores), cores))  # more: no faster, more memory
     n = surface.n_vertices
     lights = tuple(light for light in shading.lights)
     n_lights = len(lights)
@@ -349,8 +259,7 @@ def irradiance(
         per = p1 - p0
         block = max(1, BLOCK_RAYS // per)
         size = min(block, vidx.size) * per
-        index_of = np.tile(np.arange(p0, p1, dtype=np.int64), min(block, vidx.size))
-        vertex_of = np.empty(size, dtype=np.int64)
+        hashes = _kl.path_hashes(p0, p1)
         path_org = np.empty((size, 3))
         path_normal = np.empty((size, 3))
         alive = np.empty(size, dtype=bool)
@@ -374,10 +283,9 @@ def irradiance(
         rays = 0
         for b in range(0, vidx.size, block):
             sub = vidx[b : b + block]
-            count = sub.size * per
-            m = _kl.first_rays(sub, per, p0, origins, normals, keys, vertex_of, alive, throughput, value_d, value_i, live, org, dirs)
+            m = _kl.first_rays(sub, per, p0, origins, normals, keys, alive, throughput, value_d, value_i, live, org, dirs)
             rays += _trace_paths(
-                count, m, vertex_of, index_of, path_org, path_normal, alive, throughput, value_d, value_i,
+                sub, per, hashes, m, path_org, path_normal, alive, throughput, value_d, value_i,
                 live, org, dirs, far, s_org, s_dir, s_far, s_w, s_row, on_plane,
             )  # fmt: skip
             _kl.path_sums(value_d, value_i, per, sd[b : b + sub.size], si[b : b + sub.size], sq[b : b + sub.size])
@@ -389,18 +297,17 @@ def irradiance(
         return rays
 
     def _trace_paths(
-        count, m, vertex_of, index_of, path_org, path_normal, alive, throughput, value_d, value_i,
+        sub, per, hashes, m, path_org, path_normal, alive, throughput, value_d, value_i,
         live, org, dirs, far, s_org, s_dir, s_far, s_w, s_row, on_plane,
     ):  # fmt: skip
-        """Paths 0..count-1 of the buffers, their m first rays written, to their end; the
-        rays cast."""
+        """The paths of vertices ``sub`` (``per`` each, the buffers' first rows), their m
+        first rays written, to their end; the rays cast."""
         rays = 0
-        alive = alive[:count]
         for depth in range(bounces + 1):
             if depth == bounces and not sees_dome:
                 break  # the last ray only looks for the dome: without one it adds nothing
             if depth > 0:
-                m = _kl.bounce_directions(path_org, path_normal, alive, keys, vertex_of, index_of, depth, inv_scale, live, org, dirs)
+                m = _kl.bounce_directions(path_org, path_normal, alive, keys, sub, per, hashes, depth, inv_scale, live, org, dirs)
             if m == 0:
                 break
             if ground is not None:  # Embree looks no farther than the plane
@@ -422,7 +329,7 @@ def irradiance(
             if depth == bounces:
                 break
             m = _kl.hit_samples(
-                alive, path_org, path_normal, throughput, keys, vertex_of, index_of, depth,
+                alive, path_org, path_normal, throughput, keys, sub, per, hashes, depth,
                 kinds, params, has_emitters, points, faces, tris, cdf, emission, lum_total, face_offsets,
                 inv_scale, far_cap, value_i, s_org, s_dir, s_far, s_w, s_row,
             )  # fmt: skip
@@ -497,20 +404,6 @@ def irradiance(
         seconds=time.perf_counter() - t0,
         contacts=contacts,
     )
-
-
-def _check_shading(surface: Surface, shading: Shading) -> None:
-    """ValueError unless ``shading``'s arrays fit ``surface`` and are finite, albedo in
-    [0, 1] and emission >= 0 (a reader's bug, not a user's file: readers check those)."""
-    m, n = surface.n_faces, surface.n_vertices
-    for name, rows in (("face_albedo", m), ("face_emission", m), ("vertex_albedo", n), ("vertex_emission", n)):
-        arr = np.asarray(getattr(shading, name))
-        if arr.shape != (rows, 3):
-            raise ValueError(f"shading.{name} has shape {arr.shape}, the surface needs ({rows}, 3)")
-        if not np.isfinite(arr).all() or arr.min(initial=0.0) < 0:
-            raise ValueError(f"shading.{name} has negative or non-finite values")
-    if np.asarray(shading.face_albedo).max(initial=0.0) > 1:
-        raise ValueError("shading.face_albedo above 1 would add energy at every bounce")
 
 
 def _estimate(sums, squares, path_d, path_i, path_sq, taken, taken_paths, sampled, exact, rows, split=False):

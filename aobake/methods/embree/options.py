@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from ...options import (
+    bounces_option,
     max_distance_option,
     measure_option,
     option,
@@ -26,10 +27,6 @@ def _light_samples():
 def _bias():
     return option(None, "Ray origin offset along the normal (mesh units).", kind=float, low=0,
                   none="from float precision and edge length")  # fmt: skip
-
-
-def _bounces():
-    return option(1, "Indirect bounces of light (lit scenes; 0 = direct light only).", kind=int, low=0, high=64)
 
 
 def _indirect_rays():
@@ -87,7 +84,7 @@ class EmbreeOptions:
         kind=bool,
     )
     light_samples: int = _light_samples()
-    bounces: int = _bounces()
+    bounces: int = bounces_option()
     indirect_rays: int = _indirect_rays()
     seed: int = seed_option()
     threads: int | None = threads_option()
@@ -131,7 +128,7 @@ class LightOptions:
     """
 
     n_samples: int = _light_samples()
-    bounces: int = _bounces()
+    bounces: int = bounces_option()
     n_indirect: int = _indirect_rays()
     tolerance: float | None = option(
         None,

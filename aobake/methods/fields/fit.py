@@ -14,6 +14,7 @@ import hashlib
 import math
 import time
 
+import numba
 import numpy as np
 
 from ..._types import FloatArray
@@ -25,6 +26,7 @@ from ...kernels import hull as _hull
 from ...mesh import Surface
 from ...options import build
 from ...progress import NullProgress, Progress
+from ...tracing import split, trace_chunks
 from .field import MODEL_CODES, AOField
 from .fileformat import validate_field
 from .layout import (
@@ -55,6 +57,8 @@ CENTRE_ITERS = 20
 Y_POWER = 2.0
 # Sample points per raster call: progress and memory only.
 _RASTER_CHUNK = 2048
+# Texels per fit_texels call (one task of a worker thread).
+_FIT_TASK = 32
 
 
 def occluder_hash(positions: FloatArray, faces) -> str:
@@ -204,7 +208,17 @@ def fit_field(
         settings = np.array([OMEGA_ITERS, CENTRE_ITERS, Y_POWER, fit_model], dtype=np.float64)
         radial = np.ascontiguousarray(np.stack([radii, quadrature_weights(radii, r_far)], axis=-1))
         samples = np.ascontiguousarray(samples)
-        _k.fit_texels(radial, samples, np.ascontiguousarray(dirs), r0, r_far, settings, params, resid)
+        dirs = np.ascontiguousarray(dirs)
+
+        def fit(index: np.ndarray) -> int:
+            s, e = int(index[0]), int(index[-1]) + 1
+            _k.fit_texels(radial[s:e], samples[s:e], dirs[s:e], r0[s:e], r_far, settings, params[s:e],
+                          resid[s:e])
+            return e - s
+
+        # each texel is fitted on its own: the result does not depend on the threads
+        trace_chunks(split(np.arange(n_tex), _FIT_TASK), fit, threads=numba.get_num_threads(),
+                     progress=NullProgress())
     if not (np.isfinite(params).all() and np.isfinite(resid).all()):
         raise NumericalError(f"{surface.source}: field fit produced non-finite parameters")
     # the file's record of the fit ("rays", not n_rays: the format's key)

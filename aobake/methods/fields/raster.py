@@ -17,6 +17,7 @@ from __future__ import annotations
 import functools
 import math
 
+import numba
 import numpy as np
 
 from ..._types import FloatArray
@@ -24,13 +25,13 @@ from ...checks import numba_threads
 from ...errors import NumericalError
 from ...kernels import raster as _k
 from ...progress import NullProgress, Progress
+from ...tracing import split, trace_chunks
 from .layout import face_directions
 from .options import FieldOptions
 
-# Points per parallel task: scratch buffers are allocated once per task.
-_BLOCK = 8
-# Points per kernel call: progress granularity and memory bound only.
-_CHUNK = 4096
+# Points per kernel call (one task of a worker thread): scratch buffers are allocated
+# once per call; small enough that the threads' shares even out.
+_TASK = 32
 
 
 def _rectangle_solid_angle(u0, u1, v0, v1):
@@ -134,11 +135,16 @@ def raster_occlusion(
     out = np.zeros((points.shape[0], 4))
     progress = progress or NullProgress()
     progress.start(points.shape[0], "raster")
+
+    def render(index: np.ndarray) -> int:
+        s, e = int(index[0]), int(index[-1]) + 1
+        _k.render_points(vertices, faces, points[s:e], weights, vectors, out[s:e])
+        return e - s
+
     with numba_threads(threads):
-        for s in range(0, points.shape[0], _CHUNK):
-            chunk = out[s : s + _CHUNK]
-            _k.render_points(vertices, faces, points[s : s + _CHUNK], weights, vectors, _BLOCK, chunk)
-            progress.advance(chunk.shape[0])
+        workers = numba.get_num_threads()
+    # each point is drawn on its own: the result does not depend on the threads
+    trace_chunks(split(np.arange(points.shape[0]), _TASK), render, threads=workers, progress=progress)
     progress.finish()
     if not np.isfinite(out).all() or out[:, 0].min(initial=0.0) < 0 or out[:, 0].max(initial=0.0) > 4 * math.pi + 1e-9:
         raise NumericalError("raster: solid angle not finite or outside [0, 4 pi]")

@@ -1,0 +1,172 @@
+"""The disk method's light (aobake.methods.bunnell.light): the CLI writes it as for the
+reference; closed forms of the exact lights and of an area light's transfer; the
+closed-sphere furnace; the box against the ray-traced reference."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from aobake.cli import main
+from aobake.errors import InputError
+from aobake.ground import Ground
+from aobake.io import load_mesh, read_bake
+from aobake.io.lights import read_shading
+from aobake.mesh import surface_from_arrays
+from aobake.methods.bunnell import BunnellOptions
+from aobake.methods.bunnell.light import MAX_VERTICES, disk_light
+from aobake.methods.embree.light import irradiance
+from aobake.shading import Light, Shading, default_shading
+from aobake.testing.scenes import ground_grid, sphere
+
+CORNELL = Path(__file__).resolve().parents[1] / "data" / "cornell_box.usda"
+IRR = ("irradiance_r", "irradiance_g", "irradiance_b")
+
+
+def _ply_columns(path, names):
+    import plyfile
+
+    v = plyfile.PlyData.read(str(path))["vertex"].data
+    return np.stack([np.asarray(v[k], dtype=np.float64) for k in names], axis=1)
+
+
+def test_cli_bakes_the_box_light_with_bunnell(runner, tmp_path):
+    out = tmp_path / "lit.ply"
+    r = runner.invoke(main, ["bake", str(CORNELL), "-o", str(out), "--method", "bunnell", "--split-irradiance", "--color"])
+    assert r.exit_code == 0, (r.output, r.stderr, r.exception)
+    assert "not baked" not in r.stderr
+    assert "effects ao, direct, indirect" in r.stderr
+    e = _ply_columns(out, IRR)
+    d = _ply_columns(out, tuple(f"irradiance_direct_{c}" for c in "rgb"))
+    i = _ply_columns(out, tuple(f"irradiance_indirect_{c}" for c in "rgb"))
+    assert np.isfinite(e).all() and e.min() >= 0 and e.max() > 0
+    assert np.allclose(e, d + i, rtol=1e-6, atol=1e-7)  # float32 columns
+    assert i.max() > 0
+    ao = read_bake(out)
+    assert ao.min() >= 0 and ao.max() <= 1
+    # the reference's ray options are not the disk method's
+    r = runner.invoke(main, ["bake", str(CORNELL), "-o", str(out), "--method", "bunnell", "--light-samples", "4"])
+    assert r.exit_code == 2 and "--light-samples does not apply to --method bunnell" in r.output + r.stderr
+
+
+def _grid(half=1.0, cells=4):
+    pos, faces = ground_grid(half, cells)
+    return surface_from_arrays(pos, faces)
+
+
+def _lit(surface, lights, **kw):
+    return disk_light(surface, default_shading(surface.n_vertices, surface.n_faces, lights), **kw)
+
+
+def test_distant_and_point_lights_on_an_open_plane_are_exact():
+    """One shadow ray a light and vertex: E = E_perp cos and I cos / d^2; the plane's own
+    disks are edge-on to each other, so nothing bounces."""
+    s = _grid()
+    sun = Light.make("distant", "sun", (2.0, 1.0, 0.5), direction=(1.0, 0.0, 1.0))
+    r = _lit(s, [sun])
+    assert r.n_shadow_rays == s.n_vertices
+    np.testing.assert_allclose(r.direct, np.tile([2.0, 1.0, 0.5], (s.n_vertices, 1)) / math.sqrt(2), rtol=1e-12)
+    assert np.all(r.indirect == 0) and r.negative == 0 and np.all(r.error == 0)
+    lamp = Light.make("point", "lamp", (3.0, 3.0, 3.0), position=(0.3, -0.2, 0.8))
+    r = _lit(s, [lamp])
+    d = np.array([0.3, -0.2, 0.8]) - s.positions
+    want = 3.0 * d[:, 2] / np.linalg.norm(d, axis=1) ** 3
+    np.testing.assert_allclose(r.direct[:, 0], want, rtol=1e-12)
+
+
+def test_disk_light_on_its_axis_meets_the_closed_form():
+    """The centre vertex under a coaxial disk light: E = pi L R^2 / (R^2 + h^2) (the
+    light cut into LIGHT_DISKS disks: within 1%); it casts no shadow ray."""
+    s = _grid(1.0, 4)
+    radius, h, value = 0.4, 0.5, 2.0
+    disk = Light.make("disk", "d", (value,) * 3, position=(0.0, 0.0, h), normal=(0.0, 0.0, -1.0), radius=radius)
+    r = _lit(s, [disk])
+    centre = int(np.argmin(np.linalg.norm(s.positions, axis=1)))
+    want = math.pi * value * radius**2 / (radius**2 + h**2)
+    assert r.direct[centre, 0] == pytest.approx(want, rel=0.01)
+    assert r.n_shadow_rays == 0 and r.negative == 0
+
+
+@pytest.mark.parametrize("bounces", [1, 3])
+def test_furnace_inside_a_closed_sphere(bounces):
+    """A closed sphere emitting L_e with albedo rho: direct pi L_e and each bounce k adds
+    (rho s)^k of it, s the share of the enclosure the vertex disks see (the disk sum:
+    0.95 at 162 vertices, 0.99 at 642); never more: no energy gained."""
+    rho, le = 0.6, 2.0
+    s = sphere(1.0, 2, inward=True)
+    m, n = s.n_faces, s.n_vertices
+    sh = Shading((), np.full((m, 3), rho), np.full((m, 3), le), np.full((n, 3), rho), np.full((n, 3), le))
+    r = disk_light(s, sh, bounces=bounces)
+    one = disk_light(s, sh, bounces=1)
+    full = math.pi * le
+    assert np.all(r.direct <= full) and r.direct.min() > 0.96 * full
+    share = one.indirect.mean() / (rho * one.direct.mean())
+    assert 0.93 < share <= 1.0
+    want = r.direct.mean() * sum((rho * share) ** k for k in range(1, bounces + 1))
+    assert r.indirect.mean() == pytest.approx(want, rel=0.01)
+    assert r.irradiance.max() <= full * sum(rho**k for k in range(bounces + 1))
+    assert r.negative == 0
+
+
+def test_the_box_against_the_ray_traced_reference():
+    """The bundled box (RectLight, one bounce) at the defaults: relative RMSE of the
+    irradiance within the goal, 0.08, of a 256-sample reference (0.051 against 4,096
+    samples and 16,384 paths, docs/bunnell-light.md); finite and non-negative, the same
+    on one thread."""
+    surface = load_mesh(CORNELL)
+    shading = read_shading(CORNELL, surface)
+    ref = irradiance(surface, shading, n_samples=256, n_indirect=256, seed=3)
+    r = disk_light(surface, shading)
+    e, e_ref = r.irradiance, ref.irradiance
+    assert np.isfinite(e).all() and e.min() >= 0
+    assert math.sqrt(((e - e_ref) ** 2).sum() / (e_ref**2).sum()) < 0.08
+    again = disk_light(surface, shading, BunnellOptions(threads=1))
+    assert np.array_equal(again.irradiance, e)
+
+
+def test_large_meshes_are_refused_with_one_line():
+    s = _grid(1.0, 142)
+    assert s.n_vertices > MAX_VERTICES
+    with pytest.raises(InputError, match="at most 20,000"):
+        _lit(s, [Light.make("distant", "sun", (1.0, 1.0, 1.0), direction=(0.0, 0.0, 1.0))])
+
+
+def test_dome_is_the_disk_ao_times_pi_l():
+    """A dome gives pi L (1 - A), A the disk method's cosine occlusion: pi L on an open
+    plane, and under the box's ceiling as much less as the AO says."""
+    s = _grid()
+    dome = Light.make("dome", "sky", (0.5, 1.0, 2.0))
+    r = _lit(s, [dome], bounces=0)
+    np.testing.assert_allclose(r.direct, np.tile(math.pi * np.array([0.5, 1.0, 2.0]), (s.n_vertices, 1)), rtol=1e-12)
+    box = load_mesh(CORNELL)
+    r = _lit(box, [dome], bounces=0)
+    from aobake.methods.bunnell import bunnell_ao
+
+    ao = bunnell_ao(box, measure="cosine")
+    np.testing.assert_allclose(r.direct[:, 1], math.pi * ao, rtol=1e-12)
+    assert ao.min() < 0.5 < ao.max()
+
+
+def test_ground_occludes_the_shadow_rays():
+    """A wall facing +x standing on z = 1 and a point light in front of it, below a
+    ground plane at z = 0.8: no light reaches; without the plane, I cos / d^2."""
+    pos, faces = ground_grid(1.0, 4)
+    wall = np.column_stack([np.zeros(len(pos)), pos[:, 0], pos[:, 1] + 2.0])  # x = 0, z in [1, 3]
+    s = surface_from_arrays(wall, faces, np.tile([1.0, 0.0, 0.0], (len(pos), 1)))
+    lamp = Light.make("point", "lamp", (4.0, 4.0, 4.0), position=(1.0, 0.0, 0.5))
+    r = _lit(s, [lamp], ground=Ground(2, 0.8))
+    assert np.all(r.direct == 0) and r.n_shadow_rays == s.n_vertices
+    r = _lit(s, [lamp])
+    d = np.array([1.0, 0.0, 0.5]) - s.positions
+    np.testing.assert_allclose(r.direct[:, 0], 4.0 * d[:, 0] / np.linalg.norm(d, axis=1) ** 3, rtol=1e-12)
+
+
+def test_a_distant_light_with_an_angle_is_taken_along_its_axis():
+    s = _grid()
+    sun = Light.make("distant", "sun", (2.0, 2.0, 2.0), direction=(0.0, 0.0, 1.0), angle=0.2)
+    r = _lit(s, [sun])
+    np.testing.assert_allclose(r.direct, 2.0, rtol=1e-12)
+    assert r.n_shadow_rays == s.n_vertices
