@@ -235,3 +235,41 @@ def test_bake_options_come_from_the_method_options_class(runner, monkeypatch, sc
     assert (got.n_rays == 8) if method == "embree" else (got.theta == 3.0)
     untouched = {"embree": "tolerance", "bunnell": "passes"}[method]
     assert getattr(got, untouched) == getattr(cls(), untouched)
+
+
+RUN_MAIN = """import atexit, sys, threading, time
+class Late:
+    def __del__(self):
+        print("finalised", flush=True)
+late = Late()
+atexit.register(print, "atexit ran")
+if sys.argv[1] == "thread":
+    threading.Thread(target=lambda: (time.sleep(1.0), print("thread done"))).start()
+sys.argv = ["aobake"] + sys.argv[2:]
+from aobake.cli import main
+main()
+"""
+
+
+def test_command_line_process_ends_without_finalisation(tmp_path, scene_ply):
+    # `aobake ...` as a process ends by os._exit once the atexit functions ran and stdout
+    # and stderr are flushed (Python's finalisation of numba's objects took ~0.3 s a bake):
+    # outputs and exit codes as before, atexit functions run, finalisers do not; with a
+    # thread still running, the usual exit, which waits for it
+    script = tmp_path / "run.py"
+    script.write_text(RUN_MAIN)
+
+    def run(*args):
+        proc = subprocess.run([sys.executable, str(script), *args], capture_output=True, text=True, timeout=300)
+        return proc.returncode, proc.stdout.split("\n"), proc.stderr
+
+    out = tmp_path / "out.ply"
+    code, stdout, stderr = run("plain", "bake", str(scene_ply), "-o", str(out), "--rays", "4")
+    assert code == 0 and out.exists() and stdout == ["atexit ran", ""], (stdout, stderr)
+    assert stderr.startswith("scene.ply: ") and stderr.endswith(f"-> {out}\n")
+    code, stdout, stderr = run("plain", "bake", str(tmp_path / "none.ply"), "-o", str(out))
+    assert code == 1 and stdout == ["atexit ran", ""] and stderr == "Error: none.ply: file not found\n"
+    code, stdout, _ = run("plain", "--version")
+    assert code == 0 and stdout[0].endswith("version 0.1.0") and stdout[1:] == ["atexit ran", ""]
+    code, stdout, _ = run("thread", "--version")
+    assert code == 0 and stdout[1:] == ["thread done", "atexit ran", "finalised", ""], stdout

@@ -72,13 +72,13 @@ def test_usd_stderr_is_shown_as_one_warning_line_on_success(tmp_path):
 def test_warnings_are_held_back_when_the_command_fails(runner, scene_ply, tmp_path, monkeypatch, source):
     real = aobake.pipeline.as_surface
 
-    def noisy(mesh, time=None):  # as_surface's signature (time: USD inputs)
+    def noisy(mesh, time=None, prepare=None):  # as_surface's signature (time: USD inputs)
         if source == "numpy":
             with np.errstate(divide="warn"):
                 np.float64(1.0) / np.zeros(1)
         else:
             logging.getLogger("trimesh").warning("face normals did not match")
-        real(mesh, time)
+        real(mesh, time, prepare)
         raise InputError(mesh, "refused after the warning")
 
     monkeypatch.setattr(aobake.pipeline, "as_surface", noisy)
@@ -90,10 +90,10 @@ def test_warnings_are_held_back_when_the_command_fails(runner, scene_ply, tmp_pa
 def test_warnings_are_shown_once_each_after_success(runner, scene_ply, tmp_path, monkeypatch):
     real = aobake.pipeline.as_surface
 
-    def noisy(mesh, time=None):
+    def noisy(mesh, time=None, prepare=None):
         for _ in range(3):
             warnings.warn("odd  but\nfine", UserWarning)  # noqa: B028
-        return real(mesh, time)
+        return real(mesh, time, prepare)
 
     monkeypatch.setattr(aobake.pipeline, "as_surface", noisy)
     result = runner.invoke(main, ["bake", str(scene_ply), "-o", str(tmp_path / "o.ply"), "--rays", "4", "-q"])
