@@ -30,10 +30,6 @@ FASTMATH_KERNELS = {
     "listsums.far_sums_flat",
     "listsums.near_disk_sums_flat",
     "listsums.binned_sums_flat",
-    # the light's tree transfer: its two list sums are inlined into gather_tree alone
-    "transfertree.gather_tree",
-    "transfertree.near_sums",
-    "transfertree.far_sums",
 }
 
 
