@@ -17,7 +17,7 @@ from __future__ import annotations
 import argparse
 import time
 
-from bench_light import emissive_variant, rel_rmse
+from bench_light import references, rel_rmse
 
 from aobake.io import load_mesh
 from aobake.io.lights import read_shading
@@ -42,13 +42,7 @@ def main():
     irradiance(surface, shading, n_samples=1, n_indirect=1)
     print(f"scene {path.name}: {surface.n_vertices} vertices; reference {args.ref_samples} samples, "
           f"{args.ref_paths} paths; bunnell defaults: {SHADOW_PASSES} shadow passes, 1 bounce")
-    for name, (surf, sh, scored) in {
-        "RectLight": (surface, shading, surface.n_vertices),
-        "emissive quad": emissive_variant(surface, shading),
-    }.items():
-        t = time.perf_counter()
-        ref = irradiance(surf, sh, n_samples=args.ref_samples, n_indirect=args.ref_paths, seed=12345)
-        t_ref = time.perf_counter() - t
+    for name, surf, sh, scored, ref, t_ref in references(surface, shading, args.ref_samples, args.ref_paths):
         t = time.perf_counter()
         emb = irradiance(surf, sh)
         t_emb = time.perf_counter() - t

@@ -58,6 +58,19 @@ def emissive_variant(surface, shading):
     ), n  # fmt: skip
 
 
+def references(surface, shading, samples, paths):
+    """``(name, surface, shading, scored vertices, reference, its seconds)`` of the box with
+    its RectLight and as an emissive quad: the high-sample estimates the light benches
+    measure against."""
+    for name, (surf, sh, scored) in {
+        "RectLight": (surface, shading, surface.n_vertices),
+        "emissive quad": emissive_variant(surface, shading),
+    }.items():
+        t = time.perf_counter()
+        ref = irradiance(surf, sh, n_samples=samples, n_indirect=paths, seed=12345)
+        yield name, surf, sh, scored, ref, time.perf_counter() - t
+
+
 def rel_rmse(a, b):
     return float(np.sqrt(((a - b) ** 2).sum() / (b**2).sum()))
 
@@ -197,13 +210,7 @@ def main():
     ns = trace_only(surface, args.repeats)
     print(f"trace only, 1 thread, same rays: any-hit {ns['any']:.1f} ns/ray, closest-hit {ns['closest']:.1f} ns/ray "
           f"({ns['any'] / ns['closest']:.2f}x the any-hit rate)")
-    for name, (surf, sh, scored) in {
-        "RectLight": (surface, shading, surface.n_vertices),
-        "emissive quad": emissive_variant(surface, shading),
-    }.items():
-        t = time.perf_counter()
-        ref = irradiance(surf, sh, n_samples=args.ref_samples, n_indirect=args.ref_paths, seed=12345)
-        t_ref = time.perf_counter() - t
+    for name, surf, sh, scored, ref, t_ref in references(surface, shading, args.ref_samples, args.ref_paths):
         r = irradiance(surf, sh)
         e, e_ref = r.irradiance[:scored], ref.irradiance[:scored]
         covered = np.all(np.abs(e - e_ref) <= r.error[:scored], axis=1).mean()
