@@ -768,14 +768,14 @@ def sweep_file(
 
         pyplot()  # matplotlib is checked before the work, not after it
     surface = as_surface(source)
-    try:
-        out_dir.mkdir(exist_ok=True)
-    except OSError as exc:
-        raise OutputError(f"{output_name(out_dir)}: cannot create the directory ({exc.strerror or exc})") from None
     from . import lighting
 
     # read (and check) the light before any work; the plan is the reference method's
     light = lighting.prepare(source, surface, "embree", {}, lights=lights, scene_lights=scene_lights)
+    try:
+        out_dir.mkdir(exist_ok=True)
+    except OSError as exc:
+        raise OutputError(f"{output_name(out_dir)}: cannot create the directory ({exc.strerror or exc})") from None
     key = sweep_key(surface)
     cache = out_dir / f"reference_{key}_rays{reference_rays}_seed{seed}.npy"
     reference = _cached_reference(cache, surface.n_vertices)
@@ -874,7 +874,8 @@ def _light_sweep(surface, light, methods, out_dir, key, reference_rays, seed, th
     indirect = "indirect" in light.plan.effects
     shading = light.shading
     paths = 4 * reference_rays
-    cache = out_dir / f"reference_irradiance_{key}_{light_key(light)}_samples{reference_rays}_paths{paths}_seed{seed}.npy"
+    name = f"reference_irradiance_{key}_{light_key(light)}_samples{reference_rays}_paths{paths}_seed{seed}.npy"
+    cache = out_dir / name
     n = surface.n_vertices
     reference = _cached_reference(cache, 3 * n, upper=math.inf)
     if reference is None:
@@ -887,7 +888,10 @@ def _light_sweep(surface, light, methods, out_dir, key, reference_rays, seed, th
     meta = {"irradiance_reference": f"embree, {reference_rays} samples, {paths} paths, seed {seed + 1}"}
     scale = float(np.sqrt(np.mean(reference**2)))  # the reference's RMS: errors are relative to it
     if not scale > 0:
-        warnings.warn(f"{Path(str(surface.source)).name}: no irradiance rows: the reference irradiance is 0 at every vertex", stacklevel=2)
+        warnings.warn(
+            f"{Path(str(surface.source)).name}: no irradiance rows: the reference irradiance is 0 at every vertex",
+            stacklevel=2,
+        )
         return [], meta
     methods = [m for m in methods if m in LIGHTING]
     if "bunnell" in methods:
@@ -904,7 +908,8 @@ def _light_sweep(surface, light, methods, out_dir, key, reference_rays, seed, th
 
     def compute(method, options):
         if method == "embree":
-            result = run_light("embree", surface, shading, {**options, "seed": seed, "threads": threads}, indirect=indirect)
+            options = {**options, "seed": seed, "threads": threads}
+            result = run_light("embree", surface, shading, options, indirect=indirect)
         else:
             from .methods.bunnell.light import disk_light
 
@@ -913,12 +918,14 @@ def _light_sweep(surface, light, methods, out_dir, key, reference_rays, seed, th
         return (result.direct + result.indirect) / scale, result.n_shadow_rays + result.n_bounce_rays
 
     grid = sweep.light_grid(methods)
-    return sweep.run_sweep(compute, reference / scale, grid, repeats=repeats, on_row=on_row, quantity="irradiance"), meta
+    rows = sweep.run_sweep(compute, reference / scale, grid, repeats=repeats, on_row=on_row, quantity="irradiance")
+    return rows, meta
 
 
 def _cached_reference(cache: Path, n: int, upper: float = 1.0) -> np.ndarray | None:
-    """A sweep's cached reference ``ao``, or None when there is none yet; a cache that is
-    not ``n`` finite values in [0, 1] (or holds pickled data) is an :class:`InputError`."""
+    """A sweep's cached reference (``ao``; irradiance flattened, ``upper`` inf), or None
+    when there is none yet; a cache that is not ``n`` finite values in [0, ``upper``] (or
+    holds pickled data) is an :class:`InputError`."""
     if not cache.exists():
         return None
     from .io import read_bake

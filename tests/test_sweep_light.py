@@ -89,14 +89,18 @@ def test_lit_sweep_scores_irradiance_against_an_independent_reference(lit_sweep)
 
     src, out, rows = lit_sweep
     lit = [r for r in rows if r.quantity == "irradiance"]
-    assert [(r.method, r.label) for r in lit] == [(m, label) for m, label, _ in light_grid(("embree", "bunnell"))]
+    assert [(r.method, r.label) for r in lit] == [
+        (m, label) for m, label, _ in light_grid(("embree", "bunnell"))
+    ]
     assert [r.quantity for r in rows[: len(rows) - len(lit)]] == ["ao"] * (len(rows) - len(lit))
     # the reference: Embree at 16 samples and 64 paths, seed + 1, cached flat
     (cache,) = out.glob("reference_irradiance_*_samples16_paths64_seed3.npy")
     reference = np.load(cache).reshape(-1, 3)
     surface = as_surface(src)
     job = lighting.prepare(src, surface, "embree", {})
-    again = run_light("embree", surface, job.shading, {"light_samples": 16, "indirect_rays": 64, "seed": 4})
+    again = run_light(
+        "embree", surface, job.shading, {"light_samples": 16, "indirect_rays": 64, "seed": 4}
+    )
     assert np.array_equal(again.direct + again.indirect, reference)
     # each row's numbers from its own irradiance, recomputed (the rows' seed is 3)
     written = {(r["method"], r["label"]): r for r in csv.DictReader((out / "sweep.csv").open())}
@@ -125,7 +129,10 @@ def test_lit_sweep_has_its_own_pareto_front_plot_and_clean_json(lit_sweep):
         mine = [r for r in rows if r.quantity == group]
         for r in mine:
             beaten = any(
-                o.seconds <= r.seconds and o.rmse <= r.rmse and (o.seconds < r.seconds or o.rmse < r.rmse) for o in mine
+                o.seconds <= r.seconds
+                and o.rmse <= r.rmse
+                and (o.seconds < r.seconds or o.rmse < r.rmse)
+                for o in mine
             )
             assert r.pareto == (not beaten)
     data = _no_nan((out / "sweep.json").read_text())
@@ -139,12 +146,17 @@ def test_lit_sweep_has_its_own_pareto_front_plot_and_clean_json(lit_sweep):
 
 def test_an_unlit_sweep_writes_what_it_wrote_before():
     row = SweepRow("embree", "rays=4", 0.5, 10, 0.1, 0.1, 0.0, 0.2, 0.3, True)
-    assert to_csv([row]).splitlines()[0] == "method,label,seconds,rays,rmse,mae,mean_error,p99,max_abs,pareto"
+    assert (
+        to_csv([row]).splitlines()[0]
+        == "method,label,seconds,rays,rmse,mae,mean_error,p99,max_abs,pareto"
+    )
     assert list(json.loads(to_json([row], {}))["rows"][0]) == [
         "method", "label", "seconds", "rays", "rmse", "mae", "mean_error", "p99", "max_abs", "pareto",
     ]  # fmt: skip
     assert "Irradiance" not in to_markdown([row])
-    lit = SweepRow("embree", "samples=4", 0.5, 10, 0.1, 0.1, 0.0, 0.2, 0.3, True, quantity="irradiance")
+    lit = SweepRow(
+        "embree", "samples=4", 0.5, 10, 0.1, 0.1, 0.0, 0.2, 0.3, True, quantity="irradiance"
+    )
     assert to_csv([row, lit]).splitlines()[0].endswith(",pareto,quantity")
 
 
@@ -161,14 +173,41 @@ def test_cli_light_sweep_skips_bunnell_above_its_limit_with_one_warning(tmp_path
     src = _ground_ply(tmp_path)
     monkeypatch.setattr(disk, "MAX_VERTICES", 10)
     out = tmp_path / "sw"
-    args = ["sweep", str(src), "-o", str(out), "--reference-rays", "16", "--repeats", "1", "--no-fields", "--no-plot"]
+    args = [
+        "sweep",
+        str(src),
+        "-o",
+        str(out),
+        "--reference-rays",
+        "16",
+        "--repeats",
+        "1",
+        "--no-fields",
+        "--no-plot",
+    ]
     r = CliRunner().invoke(main, [*args, "-q", "--light", "point:0,0,3:20"])
     assert r.exit_code == 0, r.output
-    assert r.stderr.count("Warning:") == 1 and "no bunnell irradiance rows" in r.stderr and "at most 10" in r.stderr
+    assert (
+        r.stderr.count("Warning:") == 1
+        and "no bunnell irradiance rows" in r.stderr
+        and "at most 10" in r.stderr
+    )
     rows = list(csv.DictReader((out / "sweep.csv").open()))
     lit = [row for row in rows if row["quantity"] == "irradiance"]
     assert {row["method"] for row in lit} == {"embree"} and len(lit) == len(light_grid(("embree",)))
-    assert any(row["method"] == "bunnell" and row["quantity"] == "ao" for row in rows)  # its AO rows stay
+    assert any(
+        row["method"] == "bunnell" and row["quantity"] == "ao" for row in rows
+    )  # its AO rows stay
+    # a damaged irradiance cache is one line naming it; a bad --light a usage error
+    (cache,) = out.glob("reference_irradiance_*.npy")
+    np.save(cache, -np.load(cache) - 1.0)
+    r = CliRunner().invoke(main, [*args, "-q", "--light", "point:0,0,3:20"])
+    assert (
+        r.exit_code == 1 and cache.name in r.output and "finite values >= 0; delete it" in r.output
+    )
+    cache.unlink()
+    r = CliRunner().invoke(main, [*args, "-q", "--light", "point:0,0"])
+    assert r.exit_code == 2 and "--light" in r.output and "Traceback" not in r.output
     # a light under the ground lights nothing: no irradiance rows, one warning, the AO sweep as without it
     r = CliRunner().invoke(main, [*args, "-q", "--light", "point:0,0,-3:20"])
     assert r.exit_code == 0, r.output
@@ -180,4 +219,7 @@ def test_cli_light_sweep_skips_bunnell_above_its_limit_with_one_warning(tmp_path
         f.unlink()
     r = CliRunner().invoke(main, [*args, "-q"])
     assert r.exit_code == 0, r.output
-    assert not list(out.glob("reference_irradiance_*")) and "irradiance" not in (out / "sweep.json").read_text()
+    assert (
+        not list(out.glob("reference_irradiance_*"))
+        and "irradiance" not in (out / "sweep.json").read_text()
+    )

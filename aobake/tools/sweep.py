@@ -99,8 +99,16 @@ def light_grid(methods: Iterable[str]) -> list[tuple[str, str, dict]]:
             for s, p in LIGHT_EMBREE_GRID
         ]
     if "bunnell" in methods:
-        grid += [("bunnell", f"shadow passes={k}", {"shadow_passes": k}) for k in LIGHT_BUNNELL_PASSES]
-        grid += [("bunnell", "shadow passes=2 published", {"shadow_passes": 2, "aimed": False, "faces_occlude": False})]
+        grid += [
+            ("bunnell", f"shadow passes={k}", {"shadow_passes": k}) for k in LIGHT_BUNNELL_PASSES
+        ]
+        grid += [
+            (
+                "bunnell",
+                "shadow passes=2 published",
+                {"shadow_passes": 2, "aimed": False, "faces_occlude": False},
+            )
+        ]
     return grid
 
 
@@ -183,7 +191,9 @@ def to_markdown(rows: list[SweepRow]) -> str:
     scene's irradiance rows follow in a table of their own."""
     ao = [r for r in rows if r.quantity == "ao"]
     lit = [r for r in rows if r.quantity != "ao"]
-    text = _table(ao, "| method | settings | seconds | rays | RMSE | MAE | mean error | p99 | max | Pareto |")
+    text = _table(
+        ao, "| method | settings | seconds | rays | RMSE | MAE | mean error | p99 | max | Pareto |"
+    )
     if lit:
         text += (
             "\n\nIrradiance (errors over vertices and RGB, divided by the reference's RMS irradiance):\n\n"
@@ -228,7 +238,9 @@ def to_json(rows: list[SweepRow], meta: dict) -> str:
     return json.dumps({"meta": meta, "rows": out}, indent=2, allow_nan=False)
 
 
-def plot_sweep(rows: list[SweepRow], path, *, title: str = "", ylabel: str = "RMSE of ao against the reference") -> None:
+def plot_sweep(
+    rows: list[SweepRow], path, *, title: str = "", ylabel: str = "RMSE of ao against the reference"
+) -> None:
     """Error against seconds, log-log, one colour per method, the Pareto front drawn."""
     plt = pyplot()
     fig, ax = plt.subplots(figsize=(7, 5))
