@@ -809,10 +809,14 @@ def compare(reference, candidate, threshold, worst, json_path, plot_path, render
 @click.argument("mesh", type=click.Path(path_type=Path))
 @click.option("-o", "--output", "out_dir", required=True, type=click.Path(path_type=Path), help="Directory for the results.")
 @click.option(
-    "--reference-rays", type=click.IntRange(min=16), default=4096, show_default=True, help="Rays of the Embree reference."
+    "--reference-rays",
+    type=click.IntRange(min=16),
+    default=4096,
+    show_default=True,
+    help="Rays of the Embree reference (lit scenes: also its samples per area light, with 4x as many paths).",
 )
 @click.option("--repeats", type=click.IntRange(min=1), default=3, show_default=True, help="Time each setting this often (best).")
-@click.option("--no-plot", is_flag=True, help="Skip pareto.png (no matplotlib needed).")
+@click.option("--no-plot", is_flag=True, help="Skip pareto.png and pareto_irradiance.png (no matplotlib needed).")
 @click.option(
     "--no-fields",
     is_flag=True,
