@@ -64,7 +64,7 @@ $(OUT)/cornell_box.png: $(OUT)/cornell_box.ply
 	@echo "previewed $< -> $@"
 
 test: $(STAMP) ## Run the test suite
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q --durations=20
 
 bench: bench-embree bench-bunnell bench-field bench-batch bench-process bench-light ## All benchmarks (ratios measured in one run; ~50 min on 2 cores)
 
