@@ -239,9 +239,15 @@ def to_json(rows: list[SweepRow], meta: dict) -> str:
 
 
 def plot_sweep(
-    rows: list[SweepRow], path, *, title: str = "", ylabel: str = "RMSE of ao against the reference"
+    rows: list[SweepRow],
+    path,
+    *,
+    title: str = "",
+    ylabel: str = "RMSE of ao against the reference",
+    front: str = "bake",
 ) -> None:
-    """Error against seconds, log-log, one colour per method, the Pareto front drawn."""
+    """Error against seconds, log-log, one colour per method, the Pareto front drawn
+    (``front`` names it; field rows have their own)."""
     plt = pyplot()
     fig, ax = plt.subplots(figsize=(7, 5))
     for method in sorted({r.method for r in rows}):
@@ -268,7 +274,7 @@ def plot_sweep(
                 color="k",
                 lw=1,
                 ls=style,
-                label=f"Pareto front ({'field on the ground' if scenario == 'field' else 'bake'})",
+                label=f"Pareto front ({'field on the ground' if scenario == 'field' else front})",
             )
     ax.set_xscale("log")
     ax.set_yscale("log")
