@@ -824,7 +824,7 @@ def sweep_file(
                 out_dir / "pareto_irradiance.png",
                 title=f"{title}: irradiance",
                 ylabel="relative RMSE of irradiance against the reference",
-                front="irradiance",
+                front_name="irradiance",
             )
     return rows + lit_rows
 

@@ -223,3 +223,29 @@ def test_cli_light_sweep_skips_bunnell_above_its_limit_with_one_warning(tmp_path
         not list(out.glob("reference_irradiance_*"))
         and "irradiance" not in (out / "sweep.json").read_text()
     )
+
+
+def test_irradiance_plot_names_its_front(tmp_path, monkeypatch):
+    import matplotlib.pyplot as plt
+
+    from aobake.tools.sweep import mark_pareto, plot_sweep
+
+    closed = []
+    real = plt.close
+    monkeypatch.setattr(plt, "close", lambda fig: closed.append(fig) or real(fig))
+    rows = mark_pareto(
+        [
+            SweepRow("embree", "a", 0.1, 5, 0.2, 0, 0, 0, 0, quantity="irradiance"),
+            SweepRow("bunnell", "b", 0.3, 0, 0.1, 0, 0, 0, 0, quantity="irradiance"),
+        ]
+    )
+    plot_sweep(rows, tmp_path / "p.png", ylabel="relative RMSE", front_name="irradiance")
+    (ax,) = closed[0].axes
+    assert [t.get_text() for t in ax.get_legend().get_texts()] == [
+        "bunnell",
+        "embree",
+        "Pareto front (irradiance)",
+    ]
+    assert (
+        ax.get_ylabel() == "relative RMSE" and (tmp_path / "p.png").read_bytes()[:4] == b"\x89PNG"
+    )

@@ -244,10 +244,10 @@ def plot_sweep(
     *,
     title: str = "",
     ylabel: str = "RMSE of ao against the reference",
-    front: str = "bake",
+    front_name: str = "bake",
 ) -> None:
     """Error against seconds, log-log, one colour per method, the Pareto front drawn
-    (``front`` names it; field rows have their own)."""
+    (``front_name`` names it; field rows have their own)."""
     plt = pyplot()
     fig, ax = plt.subplots(figsize=(7, 5))
     for method in sorted({r.method for r in rows}):
@@ -274,7 +274,7 @@ def plot_sweep(
                 color="k",
                 lw=1,
                 ls=style,
-                label=f"Pareto front ({'field on the ground' if scenario == 'field' else front})",
+                label=f"Pareto front ({'field on the ground' if scenario == 'field' else front_name})",
             )
     ax.set_xscale("log")
     ax.set_yscale("log")
