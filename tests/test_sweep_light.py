@@ -249,3 +249,32 @@ def test_irradiance_plot_names_its_front(tmp_path, monkeypatch):
     assert (
         ax.get_ylabel() == "relative RMSE" and (tmp_path / "p.png").read_bytes()[:4] == b"\x89PNG"
     )
+
+
+def test_cli_without_matplotlib_says_the_irradiance_plot_was_skipped(tmp_path, monkeypatch):
+    import aobake.pipeline
+    import aobake.tools.plot as plot
+
+    monkeypatch.setattr(plot, "pyplot", lambda *, required=True: None)
+    seen = {}
+
+    def fake_sweep(mesh, out_dir, **kwargs):
+        seen.update(kwargs)
+        return [
+            SweepRow(
+                "embree", "samples=4", 0.5, 10, 0.1, 0.1, 0.0, 0.2, 0.3, True, quantity="irradiance"
+            )
+        ]
+
+    monkeypatch.setattr(aobake.pipeline, "sweep_file", fake_sweep)
+    src = _ground_ply(tmp_path)
+    r = CliRunner().invoke(
+        main, ["sweep", str(src), "-o", str(tmp_path / "sw"), "-q", "--light", "point:0,0,3"]
+    )
+    assert r.exit_code == 0, r.output
+    assert (
+        seen["plot"] is False
+        and seen["lights"] == ("point:0,0,3",)
+        and seen["scene_lights"] is True
+    )
+    assert "skipping pareto.png" in r.stderr and "skipping pareto_irradiance.png too" in r.stderr
