@@ -57,17 +57,31 @@ LIT_USDA = (
 )
 
 
+AO_GRID = [
+    ("embree", "rays=4", {"n_rays": 4}),
+    ("bunnell", "passes=1 theta=2", {"passes": 1, "theta": 2.0}),
+]
+
+
 @pytest.fixture(scope="module")
 def lit_sweep(tmp_path_factory):
-    """One sweep of the lit corner (both methods, 16 reference samples, no fields)."""
+    """One sweep of the lit corner (both methods, 16 reference samples, no fields; two AO
+    rows, the AO grid is test_sweep's)."""
+    import aobake.tools.sweep as sweep_mod
     from aobake.pipeline import sweep_file
 
     d = tmp_path_factory.mktemp("lit")
     src = d / "corner.usda"
     src.write_text(LIT_USDA)
     out = d / "sw"
-    rows = sweep_file(src, out, reference_rays=16, fields=False, plot=True, repeats=1, seed=3)
-    return src, out, rows
+    plots = []  # drawing is test_irradiance_plot_names_its_front's; here: what is plotted where
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(sweep_mod, "default_grid", lambda methods: AO_GRID)
+        mp.setattr(
+            sweep_mod, "plot_sweep", lambda rows, path, **kw: plots.append((rows, path.name, kw))
+        )
+        rows = sweep_file(src, out, reference_rays=16, fields=False, plot=True, repeats=1, seed=3)
+    return src, out, rows, plots
 
 
 def _rel_rmse(a, b):
@@ -87,7 +101,7 @@ def test_lit_sweep_scores_irradiance_against_an_independent_reference(lit_sweep)
     from aobake.methods.bunnell.light import disk_light
     from aobake.pipeline import as_surface
 
-    src, out, rows = lit_sweep
+    src, out, rows, _ = lit_sweep
     lit = [r for r in rows if r.quantity == "irradiance"]
     assert [(r.method, r.label) for r in lit] == [
         (m, label) for m, label, _ in light_grid(("embree", "bunnell"))
@@ -124,7 +138,7 @@ def test_lit_sweep_scores_irradiance_against_an_independent_reference(lit_sweep)
 
 
 def test_lit_sweep_has_its_own_pareto_front_plot_and_clean_json(lit_sweep):
-    _, out, rows = lit_sweep
+    _, out, rows, plots = lit_sweep
     for group in ("ao", "irradiance"):
         mine = [r for r in rows if r.quantity == group]
         for r in mine:
@@ -138,8 +152,11 @@ def test_lit_sweep_has_its_own_pareto_front_plot_and_clean_json(lit_sweep):
     data = _no_nan((out / "sweep.json").read_text())
     assert [row["quantity"] for row in data["rows"]] == [r.quantity for r in rows]
     assert data["meta"]["irradiance_reference"] == "embree, 16 samples, 64 paths, seed 4"
-    assert (out / "pareto.png").read_bytes()[:4] == b"\x89PNG"
-    assert (out / "pareto_irradiance.png").read_bytes()[:4] == b"\x89PNG"
+    assert [(name, {r.quantity for r in plotted}) for plotted, name, _ in plots] == [
+        ("pareto.png", {"ao"}),
+        ("pareto_irradiance.png", {"irradiance"}),
+    ]
+    assert plots[1][2]["front_name"] == "irradiance" and "irradiance" in plots[1][2]["ylabel"]
     text = to_markdown(rows)
     assert text.count("| method | settings |") == 2 and "rel. RMSE" in text
 
@@ -169,9 +186,11 @@ def _ground_ply(tmp_path):
 
 def test_cli_light_sweep_skips_bunnell_above_its_limit_with_one_warning(tmp_path, monkeypatch):
     import aobake.methods.bunnell.light as disk
+    import aobake.tools.sweep as sweep_mod
 
     src = _ground_ply(tmp_path)
     monkeypatch.setattr(disk, "MAX_VERTICES", 10)
+    monkeypatch.setattr(sweep_mod, "default_grid", lambda methods: AO_GRID)
     out = tmp_path / "sw"
     args = [
         "sweep",
