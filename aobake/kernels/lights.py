@@ -367,7 +367,7 @@ def direct_samples(
                 shadow = True
             s0, s1 = rng.scramble_seeds(rng.hash2(keys[v], np.uint64(c)))
             for j in range(j_lo[c], j_hi[c]):
-                u0, u1 = rng.scrambled_sobol2_seeded(j, s0, s1)
+                u0, u1 = rng.scrambled_sobol2_fast(j, s0, s1)
                 if c < n_lights:
                     wr, wg, wb, dx, dy, dz, dist = sample_light(kinds[c], params, c, ox, oy, oz, nx, ny, nz, u0, u1)
                 else:
@@ -456,7 +456,7 @@ def first_rays(vertices, per, p0, origins, normals, keys, alive, throughput, val
         tx, ty, tz, bx, by, bz = warps.frame(nx, ny, nz)
         ox, oy, oz = origins[v, 0], origins[v, 1], origins[v, 2]
         for s in range(per):
-            u0, u1 = rng.scrambled_sobol2_seeded(p0 + s, s0, s1)
+            u0, u1 = rng.scrambled_sobol2_fast(p0 + s, s0, s1)
             x, y, z = warps.square_to_cosine_hemisphere(u0, u1)
             out_live[m] = a * per + s
             out_org[m, 0] = ox
