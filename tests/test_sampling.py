@@ -148,6 +148,50 @@ def test_random2_and_its_split_hash_match_the_formula():
             assert rng.random2_hashed(hashes[index - 5], np.uint64(key)) == want
 
 
+def _sobol1_reference(index):
+    """Dimension 1 of the Sobol sequence in Python integers: the XOR of the direction
+    numbers v_0 = 2^31, v_(k+1) = v_k ^ (v_k >> 1) of the index's set bits."""
+    x, v = 0, 1 << 31
+    while index:
+        if index & 1:
+            x ^= v
+        index >>= 1
+        v ^= v >> 1
+    return x
+
+
+def test_fast_sobol_point_is_the_looped_one():
+    # The light kernels' point (five masked shifts, no double reversal) must be the
+    # AO's bit for bit: same seeds, any 32-bit index.
+    indices = [0, 1, 2, 3, 255, 256, 1023, 1024, 12345, (1 << 31) - 1, 1 << 31, (1 << 32) - 1]
+    indices += [int(i) for i in np.random.default_rng(4).integers(0, 1 << 32, 200)]
+    for i in indices:
+        want = int(f"{_sobol1_reference(i):032b}"[::-1], 2)
+        assert rng.sobol1_reversed(np.uint64(i)) == want
+    for s0, s1 in ((0, 0), (0x12345678, 0x9ABCDEF0), (0xFFFFFFFF, 1)):
+        for i in indices:
+            got = rng.scrambled_sobol2_fast(np.uint64(i), np.uint64(s0), np.uint64(s1))
+            assert got == rng.scrambled_sobol2_seeded(np.uint64(i), np.uint64(s0), np.uint64(s1))
+
+
+def test_branch_free_first_directions_are_the_warps():
+    # The paths' first directions are made by selects, not branches (so the loop
+    # vectorises): the concentric map and the cosine warp of the Sobol point, bit for bit.
+    from aobake.kernels.lights import _first_direction, concentric_selects
+
+    u = np.random.default_rng(5).integers(0, 1 << 32, (400, 2)) / 2**32
+    special = [0.0, 0.25, 0.5, 0.75, 1 - 2**-32, 0.5 + 2**-32, 0.5 - 2**-32]
+    pairs = [tuple(x) for x in u] + [(a, b) for a in special for b in special]
+    pairs += [(x, x) for x in u[:50, 0]] + [(x, 1.0 - x) for x in u[:50, 0]]  # the wedges' diagonals
+    for u0, u1 in pairs:
+        assert concentric_selects(u0, u1) == warps.square_to_uniform_disk_concentric(u0, u1)
+    assert concentric_selects(0.5, 0.5) == (0.0, 0.0)
+    for s0, s1 in ((0, 0), (0x2545F491, 0x4F6CDD1D)):
+        for i in [0, 1, 2, 3, 1023, 1 << 20, (1 << 32) - 1]:
+            uv = rng.scrambled_sobol2_seeded(np.uint64(i), np.uint64(s0), np.uint64(s1))
+            assert _first_direction(i, np.uint64(s0), np.uint64(s1)) == warps.square_to_cosine_hemisphere(*uv)
+
+
 def test_reverse_bits():
     assert rng.reverse_bits32(np.uint64(1)) == np.uint64(0x80000000)
     assert rng.reverse_bits32(np.uint64(0x80000000)) == np.uint64(1)

