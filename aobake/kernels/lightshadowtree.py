@@ -12,7 +12,8 @@ kernel by its own file's time stamp: after changing the inlined ``lightshadow._c
 Node rows (float64): centre, bounding radius (disks included), summed area A, squared
 distance beyond which the node is used whole, ``kappa^2 T / A`` (T = sum A m m^T: so
 ``sqrt(u^T (kappa^2 T / A) u)`` estimates the mean ``|m.u|``, ``hierarchy.spread_factor``),
-then per light group g: ``S_g = sum A (v_0 + v_1) / 2`` and ``D_g = sum A (v_0 - v_1) m / 2``
+the number of occluders with light on a side (N_LIT: 0 = the node adds nothing), then per
+light group g: ``S_g = sum A (v_0 + v_1) / 2`` and ``D_g = sum A (v_0 - v_1) m / 2``
 (v_s: the fraction of g's light reaching side s), so that ``a S_g + D_g.u`` is the
 visibility-weighted projected area ``sum A |m.u| v_side``, exact for one disk.
 """
@@ -28,8 +29,20 @@ from aobake.constants import COINCIDENT_REL
 
 from .lightshadow import O_A, O_C, O_M, Q_A, Q_C, Q_GROUP, Q_L, Q_M, _cap, _overlap
 
-N_C, N_B, N_A, N_OPEN_D2, N_T, N_G = 0, 3, 4, 5, 6, 12
+N_C, N_B, N_A, N_OPEN_D2, N_T, N_LIT, N_G = 0, 3, 4, 5, 6, 12, 13
 N_GROUP_COLS = 4  # S_g, D_g (3)
+# Depth of the walk's stack: one pending sibling per level of the tree (a median-split
+# tree over k disks is about log2(k / leaf) deep).
+STACK_DEPTH = 128
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _covered(cover, w_q):
+    """Every patch seen is covered (its share saturated at 1)."""
+    for q in range(w_q.shape[0]):
+        if w_q[q] > 0.0 and cover[q] < 1.0:
+            return False
+    return True
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -38,7 +51,7 @@ def _cover(cover, w_q, a_q, d2_q, ux_q, uy_q, uz_q, patches, r2, ux, uy, uz, w_j
     distance ``r2``, visibility ``vis_g[g]`` per group) to every patch it is nearer than,
     as ``lightshadow.aimed_shadow`` does."""
     for q in range(patches.shape[0]):
-        if w_q[q] <= 0.0 or d2_q[q] <= r2:
+        if w_q[q] <= 0.0 or d2_q[q] <= r2 or cover[q] >= 1.0:  # a covered patch stays covered
             continue
         cos_b = ux * ux_q[q] + uy * uy_q[q] + uz * uz_q[q]
         if cos_b <= 0.0:
@@ -126,22 +139,24 @@ def aimed_shadow_tree(points, normals, skip, start, stop, nodes, occ, own, vis, 
                 cos_q = min(1.0, max(-1.0, ax * ux_q[q] + ay * uy_q[q] + az * uz_q[q]))
                 spread = max(spread, math.acos(cos_q) + a_q[q])
         far = math.sqrt(far2)
-        node = 0
-        while node < m:
-            nxt = skip[node]
+        # nearer child first, and stop once every patch seen is covered (min(1, C) cannot change)
+        stack = np.empty(STACK_DEPTH, dtype=np.int64)
+        stack[0] = 0
+        sp = 1
+        while sp > 0:
+            sp -= 1
+            node = stack[sp]
             dx, dy, dz = nodes[node, N_C] - px, nodes[node, N_C + 1] - py, nodes[node, N_C + 2] - pz
             b = nodes[node, N_B]
             d2 = dx * dx + dy * dy + dz * dz
             d = math.sqrt(d2)
             height = nx * dx + ny * dy + nz * dz
-            if height <= -b or d - b >= far:
-                node = nxt  # every centre behind the plane, or beyond every patch
-                continue
+            if height <= -b or d - b >= far or nodes[node, N_LIT] <= 0.0:
+                continue  # every centre behind the plane, or beyond every patch, or no light on any side
             if d > b:
                 ang = math.acos(min(1.0, max(-1.0, (ax * dx + ay * dy + az * dz) / d)))
                 if ang - math.asin(b / d) - math.atan(b / (d - b)) >= spread:
-                    node = nxt  # outside the cone by more than any of its occluders' caps
-                    continue
+                    continue  # outside the cone by more than any of its occluders' caps
                 if d2 >= nodes[node, N_OPEN_D2] and height >= b and (d + b) * (d + b) < near2:
                     ux, uy, uz = dx / d, dy / d, dz / d
                     t = N_T
@@ -157,10 +172,21 @@ def aimed_shadow_tree(points, normals, skip, start, stop, nodes, occ, own, vis, 
                             vis_g[g] = min(1.0, max(0.0, x / proj))
                         w_j, a_j = _cap(d2, min(proj, math.pi * b * b))
                         _cover(cover, w_q, a_q, d2_q, ux_q, uy_q, uz_q, patches, d2, ux, uy, uz, w_j, a_j, vis_g)
-                    node = nxt
+                        if _covered(cover, w_q):
+                            break
                     continue
-            if nxt != node + 1:
-                node += 1
+            if skip[node] != node + 1:
+                left = node + 1
+                right = skip[left]
+                lx, ly, lz = nodes[left, N_C] - px, nodes[left, N_C + 1] - py, nodes[left, N_C + 2] - pz
+                rx, ry, rz = nodes[right, N_C] - px, nodes[right, N_C + 1] - py, nodes[right, N_C + 2] - pz
+                if lx * lx + ly * ly + lz * lz <= rx * rx + ry * ry + rz * rz:
+                    stack[sp] = right
+                    stack[sp + 1] = left
+                else:
+                    stack[sp] = left
+                    stack[sp + 1] = right
+                sp += 2
                 continue
             for j in range(start[node], stop[node]):
                 if own[j] == i:
@@ -174,13 +200,18 @@ def aimed_shadow_tree(points, normals, skip, start, stop, nodes, occ, own, vis, 
                 ux, uy, uz = dx / r, dy / r, dz / r
                 md = occ[j, O_M] * ux + occ[j, O_M + 1] * uy + occ[j, O_M + 2] * uz
                 side = 0 if md > 0.0 else 1
+                lit = 0.0
+                for g in range(n_groups):
+                    vis_g[g] = vis[j, side, g]
+                    lit += vis_g[g]
+                if lit <= 0.0:
+                    continue  # no light on the side it blocks: it adds nothing
                 w_j, a_j = _cap(r2, area * abs(md))
                 if math.acos(min(1.0, max(-1.0, ax * ux + ay * uy + az * uz))) >= spread + a_j:
                     continue
-                for g in range(n_groups):
-                    vis_g[g] = vis[j, side, g]
                 _cover(cover, w_q, a_q, d2_q, ux_q, uy_q, uz_q, patches, r2, ux, uy, uz, w_j, a_j, vis_g)
-            node = nxt
+            if _covered(cover, w_q):
+                break
         for g in range(n_groups):
             total = 0.0
             blocked = 0.0

@@ -131,7 +131,7 @@ def aimed_nodes(tree: DiskTree, vis, theta: float = AIMED_THETA) -> np.ndarray:
                    nrm[:, 1] * nrm[:, 2]], axis=1)  # fmt: skip
     half_sum = 0.5 * (vis[:, 0] + vis[:, 1])  # (k, G)
     half_diff = 0.5 * (vis[:, 0] - vis[:, 1])
-    cols = [a[:, None] * mm]
+    cols = [a[:, None] * mm, (vis.reshape(vis.shape[0], -1).max(axis=1) > 0.0)[:, None].astype(np.float64)]
     for c in range(n_groups):
         cols.append((a * half_sum[:, c])[:, None])
         cols.append((a * half_diff[:, c])[:, None] * nrm)
@@ -150,7 +150,8 @@ def aimed_nodes(tree: DiskTree, vis, theta: float = AIMED_THETA) -> np.ndarray:
     with np.errstate(over="ignore", invalid="ignore"):
         nodes[:, _kst.N_OPEN_D2] = np.where(np.isfinite(theta), theta * g[:, 3] ** 2, np.inf)
     nodes[:, _kst.N_T : _kst.N_T + 6] = t * (kappa**2 / area)[:, None]
-    nodes[:, _kst.N_G :] = sums[:, 6:]
+    nodes[:, _kst.N_LIT] = sums[:, 6]
+    nodes[:, _kst.N_G :] = sums[:, 7:]
     return nodes
 
 
