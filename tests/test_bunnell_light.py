@@ -141,13 +141,13 @@ def test_large_meshes_bake_through_the_trees():
 @pytest.mark.parametrize("knobs", [{}, {"faces_occlude": False}, {"aimed": False}])
 def test_the_trees_with_every_cluster_opened_are_the_brute_force_passes(knobs):
     """The box (RectLight, one bounce): theta = inf (trees of the bounce, the shadow
-    subtraction and the aimed pass, every cluster opened) equals the brute-force passes
+    subtraction and the aimed pass, every cluster opened, no shared passes) equals the brute-force passes
     (float32 lists in the transfer walk: 1e-6 of the peak); at the defaults within 1% of
     them (relative RMSE)."""
     surface = load_mesh(CORNELL)
     shading = read_shading(CORNELL, surface)
     brute = disk_light(surface, shading, theta=None, **knobs)
-    opened = disk_light(surface, shading, theta=math.inf, aimed_theta=math.inf, **knobs)
+    opened = disk_light(surface, shading, theta=math.inf, aimed_theta=math.inf, share=False, **knobs)
     peak = brute.irradiance.max()
     assert np.abs(opened.direct - brute.direct).max() < 1e-6 * peak
     assert np.abs(opened.indirect - brute.indirect).max() < 1e-6 * peak

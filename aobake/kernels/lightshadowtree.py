@@ -34,6 +34,9 @@ N_GROUP_COLS = 4  # S_g, D_g (3)
 # Depth of the walk's stack: one pending sibling per level of the tree (a median-split
 # tree over k disks is about log2(k / leaf) deep).
 STACK_DEPTH = 128
+# Slack of the cosine test that an occluder's cap is apart from a patch's (far above the
+# rounding of the cosines): within it the overlap is computed (0 or not).
+REJECT_SLACK = 1e-9
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -46,15 +49,20 @@ def _covered(cover, w_q):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _cover(cover, w_q, a_q, d2_q, ux_q, uy_q, uz_q, patches, r2, ux, uy, uz, w_j, a_j, vis_g):
-    """Add one occluder (cap ``w_j``, angular radius ``a_j`` at unit direction u and squared
-    distance ``r2``, visibility ``vis_g[g]`` per group) to every patch it is nearer than,
-    as ``lightshadow.aimed_shadow`` does."""
+def _cover(cover, w_q, a_q, cos_q, sin_q, d2_q, ux_q, uy_q, uz_q, patches, r2, ux, uy, uz, projected, vis_g):
+    """Add one occluder (``projected`` area at unit direction u and squared distance
+    ``r2``, visibility ``vis_g[g]`` per group) to every patch it is nearer than, as
+    ``lightshadow.aimed_shadow`` does; a patch whose cap is clearly apart from the
+    occluder's (``cos_b`` below ``cos(a_j + a_q)`` by REJECT_SLACK) is passed over without
+    the overlap (it is 0)."""
+    w_j, a_j = _cap(r2, projected)
+    cos_j = math.sqrt(r2 / (r2 + projected / math.pi))
+    sin_j = math.sqrt((projected / math.pi) / (r2 + projected / math.pi))
     for q in range(patches.shape[0]):
         if w_q[q] <= 0.0 or d2_q[q] <= r2 or cover[q] >= 1.0:  # a covered patch stays covered
             continue
         cos_b = ux * ux_q[q] + uy * uy_q[q] + uz * uz_q[q]
-        if cos_b <= 0.0:
+        if cos_b <= 0.0 or cos_b < cos_j * cos_q[q] - sin_j * sin_q[q] - REJECT_SLACK:
             continue
         f = _overlap(a_j, a_q[q], math.acos(min(1.0, cos_b)))
         if f > 0.0:
@@ -87,7 +95,6 @@ def aimed_shadow_tree(points, normals, skip, start, stop, nodes, occ, own, vis, 
         Overwritten.
     """
     n = points.shape[0]
-    m = skip.shape[0]
     n_patches = patches.shape[0]
     n_groups = out.shape[1]
     for i in prange(n):
@@ -105,6 +112,8 @@ def aimed_shadow_tree(points, normals, skip, start, stop, nodes, occ, own, vis, 
         a_q = np.zeros(n_patches)
         c_q = np.zeros(n_patches)
         cover = np.zeros(n_patches)
+        cos_q = np.zeros(n_patches)
+        sin_q = np.zeros(n_patches)
         vis_g = np.empty(n_groups)
         for q in range(n_patches):
             tx, ty, tz = patches[q, Q_C] - px, patches[q, Q_C + 1] - py, patches[q, Q_C + 2] - pz
@@ -120,6 +129,7 @@ def aimed_shadow_tree(points, normals, skip, start, stop, nodes, occ, own, vis, 
             if cq <= 0.0 or cos_r <= 0.0:
                 continue
             w_q[q], a_q[q] = _cap(d2, patches[q, Q_A] * cq)
+            cos_q[q], sin_q[q] = math.cos(a_q[q]), math.sin(a_q[q])
             c_q[q] = cos_r * (patches[q, Q_L] + patches[q, Q_L + 1] + patches[q, Q_L + 2])
         ax, ay, az, far2, near2 = 0.0, 0.0, 0.0, 0.0, np.inf
         for q in range(n_patches):
@@ -136,8 +146,8 @@ def aimed_shadow_tree(points, normals, skip, start, stop, nodes, occ, own, vis, 
         spread = 0.0
         for q in range(n_patches):
             if w_q[q] > 0.0:
-                cos_q = min(1.0, max(-1.0, ax * ux_q[q] + ay * uy_q[q] + az * uz_q[q]))
-                spread = max(spread, math.acos(cos_q) + a_q[q])
+                cos_axis = min(1.0, max(-1.0, ax * ux_q[q] + ay * uy_q[q] + az * uz_q[q]))
+                spread = max(spread, math.acos(cos_axis) + a_q[q])
         far = math.sqrt(far2)
         # nearer child first, and stop once every patch seen is covered (min(1, C) cannot change)
         stack = np.empty(STACK_DEPTH, dtype=np.int64)
@@ -154,9 +164,11 @@ def aimed_shadow_tree(points, normals, skip, start, stop, nodes, occ, own, vis, 
             if height <= -b or d - b >= far or nodes[node, N_LIT] <= 0.0:
                 continue  # every centre behind the plane, or beyond every patch, or no light on any side
             if d > b:
-                ang = math.acos(min(1.0, max(-1.0, (ax * dx + ay * dy + az * dz) / d)))
-                if ang - math.asin(b / d) - math.atan(b / (d - b)) >= spread:
-                    continue  # outside the cone by more than any of its occluders' caps
+                # outside the cone by more than any of its occluders' caps: the angle to
+                # the axis >= spread + asin(b / d) + atan(b / (d - b)) (bounded above)
+                lim = spread + 0.5 * math.pi * b / d + b / (d - b)
+                if lim < math.pi and ax * dx + ay * dy + az * dz <= d * math.cos(lim) - REJECT_SLACK * d:
+                    continue
                 if d2 >= nodes[node, N_OPEN_D2] and height >= b and (d + b) * (d + b) < near2:
                     ux, uy, uz = dx / d, dy / d, dz / d
                     t = N_T
@@ -170,8 +182,8 @@ def aimed_shadow_tree(points, normals, skip, start, stop, nodes, occ, own, vis, 
                             c = N_G + N_GROUP_COLS * g
                             x = a * nodes[node, c] + nodes[node, c + 1] * ux + nodes[node, c + 2] * uy + nodes[node, c + 3] * uz
                             vis_g[g] = min(1.0, max(0.0, x / proj))
-                        w_j, a_j = _cap(d2, min(proj, math.pi * b * b))
-                        _cover(cover, w_q, a_q, d2_q, ux_q, uy_q, uz_q, patches, d2, ux, uy, uz, w_j, a_j, vis_g)
+                        _cover(cover, w_q, a_q, cos_q, sin_q, d2_q, ux_q, uy_q, uz_q, patches, d2, ux, uy, uz,
+                               min(proj, math.pi * b * b), vis_g)  # fmt: skip
                         if _covered(cover, w_q):
                             break
                     continue
@@ -209,7 +221,7 @@ def aimed_shadow_tree(points, normals, skip, start, stop, nodes, occ, own, vis, 
                 w_j, a_j = _cap(r2, area * abs(md))
                 if math.acos(min(1.0, max(-1.0, ax * ux + ay * uy + az * uz))) >= spread + a_j:
                     continue
-                _cover(cover, w_q, a_q, d2_q, ux_q, uy_q, uz_q, patches, r2, ux, uy, uz, w_j, a_j, vis_g)
+                _cover(cover, w_q, a_q, cos_q, sin_q, d2_q, ux_q, uy_q, uz_q, patches, r2, ux, uy, uz, area * abs(md), vis_g)
             if _covered(cover, w_q):
                 break
         for g in range(n_groups):

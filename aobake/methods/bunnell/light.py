@@ -31,6 +31,7 @@ from ...constants import (
 from ...contacts import contact_origins, ray_offsets
 from ...errors import NumericalError
 from ...ground import Ground
+from ...kernels import hierarchy as _h
 from ...kernels import lights as _kl
 from ...kernels import lightshadow as _kls
 from ...kernels import rays as _k
@@ -43,6 +44,7 @@ from ...tracing import tracer_for
 from .elements import DiskElements, build_elements
 from .lighttree import AIMED_THETA, LIGHT_THETA, DiskTree, Receivers, aimed_shadow_tree, tree_gather
 from .options import BunnellOptions
+from .passes import SHARE_COS
 from .transfer import transfer
 
 #: Most vertices the brute-force passes (``theta=None``, the tests' reference) take: every
@@ -124,6 +126,7 @@ def disk_light(
     faces_occlude: bool = True,
     theta: float | None = LIGHT_THETA,
     aimed_theta: float = AIMED_THETA,
+    share: bool = True,
     progress: Progress | None = None,
     ground: Ground | None = None,
 ) -> LightResult:
@@ -154,6 +157,10 @@ def disk_light(
         None: the brute-force passes themselves (O(n^2): at most BRUTE_MAX_VERTICES).
     aimed_theta : float
         Opening parameter of the aimed pass's occluder tree (with ``theta`` not None).
+    share : bool
+        With ``theta`` not None: the aimed passes that only weight the next one are
+        evaluated at one vertex per leaf of the vertex tree and shared with the leaf's
+        vertices of like normal (as the AO's later passes); False: at every vertex.
     ground : aobake.ground.Ground, optional
         Occludes the shadow rays and the dome; its reflected light is not modelled.
 
@@ -171,14 +178,14 @@ def disk_light(
         raise ValueError(f"theta=None (brute force) takes at most {BRUTE_MAX_VERTICES:,} vertices, got {n:,}")
     with numba_threads(options.threads):
         return _disk_light(surface, shading, options, bounces, shadow_passes, light_disks, aimed, faces_occlude,
-                           theta, aimed_theta, progress, ground)  # fmt: skip
+                           theta, aimed_theta, share, progress, ground)  # fmt: skip
 
 
 class _Trees:
     """The lit passes' trees and receivers of one scene (built once, used by every pass):
     both sides of every vertex as receivers, the vertex disks, the occluding triangles."""
 
-    def __init__(self, elements: DiskElements, theta: float, aimed_theta: float, faces_occlude: bool):
+    def __init__(self, elements: DiskElements, theta: float, aimed_theta: float, faces_occlude: bool, share: bool = True):
         idx = elements.emitter_index
         front_p, front_n, back_p, back_n = _sides(elements)
         self.theta, self.aimed_theta = theta, aimed_theta
@@ -186,6 +193,13 @@ class _Trees:
         self.vertex = DiskTree(elements.positions[idx], elements.normals[idx], elements.areas[idx], theta)
         self.own = np.full(elements.n_vertices, -1, dtype=np.int64)  # each vertex's own disk
         self.own[idx] = np.arange(idx.shape[0])
+        # the passes that only weight the next one are evaluated at one vertex per leaf of
+        # the vertex tree (the AO's pass representatives) and shared with the leaf
+        rep_of = np.arange(elements.n_vertices, dtype=np.int64)
+        if self.vertex.size and share:
+            _h.leaf_representatives(elements.positions, elements.normals, elements.areas, idx[self.vertex.order],
+                                    self.vertex.skip, self.vertex.start, self.vertex.stop, SHARE_COS, rep_of)  # fmt: skip
+        self.reps, self.rep_index = np.unique(rep_of, return_inverse=True)
         if faces_occlude:
             self.faces, occ = _face_occluders(elements)
             self.occluders = DiskTree(occ[:, :3], occ[:, 3:6], occ[:, 6], theta)
@@ -195,8 +209,8 @@ class _Trees:
 
 
 def _disk_light(
-    surface, shading, options, bounces, shadow_passes, light_disks, aimed, faces_occlude, theta, aimed_theta, progress,
-    ground,
+    surface, shading, options, bounces, shadow_passes, light_disks, aimed, faces_occlude, theta, aimed_theta, share,
+    progress, ground,
 ) -> LightResult:  # fmt: skip
     """:func:`disk_light` once the inputs are checked."""
     n = surface.n_vertices
@@ -215,7 +229,7 @@ def _disk_light(
     progress.advance(1)
     emitters = emitter_disks(elements, shading, lights, light_disks)
     bouncing = bounces > 0 and shading.reflects
-    trees = _Trees(elements, theta, aimed_theta, faces_occlude) if theta is not None and (emitters.size or bouncing) else None
+    trees = _Trees(elements, theta, aimed_theta, faces_occlude, share) if theta is not None and (emitters.size or bouncing) else None
     negative = np.zeros(n, dtype=bool)
     if emitters.size:
         if aimed:
@@ -452,7 +466,11 @@ def _aimed(
         lit = np.empty_like(first)
         last = _ == passes - 1  # the last pass lights the front sides alone: they are the output
         for side, (pts, nrm) in enumerate(((front_p, front_n),) if last else ((front_p, front_n), (back_p, back_n))):
-            if trees is not None:
+            if trees is not None and not last and trees.reps.shape[0] < n:
+                part = np.empty((trees.reps.shape[0], n_groups))
+                aimed_shadow_tree(pts[trees.reps], nrm[trees.reps], trees.occluders, occ_own, vis, rows, part, trees.aimed_theta)
+                blocked[:] = part[trees.rep_index]
+            elif trees is not None:
                 aimed_shadow_tree(pts, nrm, trees.occluders, occ_own, vis, rows, blocked, trees.aimed_theta)
             else:
                 _kls.aimed_shadow(pts, nrm, occ, occ_own, vis, rows, blocked)
