@@ -200,6 +200,12 @@ class _Trees:
             _h.leaf_representatives(elements.positions, elements.normals, elements.areas, idx[self.vertex.order],
                                     self.vertex.skip, self.vertex.start, self.vertex.stop, SHARE_COS, rep_of)  # fmt: skip
         self.reps, self.rep_index = np.unique(rep_of, return_inverse=True)
+        self.shared = self.reps.shape[0] < elements.n_vertices
+        if self.shared:
+            self.rep_sides = (Receivers(front_p[self.reps], front_n[self.reps]), Receivers(back_p[self.reps], back_n[self.reps]))
+            self.rep_own = self.own[self.reps]
+        else:
+            self.rep_sides, self.rep_own = self.sides, self.own
         if faces_occlude:
             self.faces, occ = _face_occluders(elements)
             self.occluders = DiskTree(occ[:, :3], occ[:, 3:6], occ[:, 6], theta)
@@ -295,21 +301,22 @@ def _shadowed(
     idx = elements.emitter_index
     n = elements.n_vertices
     front_p, front_n, back_p, back_n = _sides(elements)
-    if emitters is not None:
-        src = (emitters.centres, emitters.normals, emitters.areas, emitters.radiance, np.full(emitters.size, -1, dtype=np.int64))
-        first_f = _gather(front_p, front_n, *src)
-        first_b = _gather(back_p, back_n, *src)
-    elif trees is not None:
-        first_f, first_b = (tree_gather(trees.vertex, side, radiance[idx], own=trees.own) for side in trees.sides)
-    else:
-        src = (elements.positions[idx], elements.normals[idx], elements.areas[idx], radiance[idx], idx)
-        first_f = _gather(front_p, front_n, *src)
-        first_b = _gather(back_p, back_n, *src)
-    progress.advance(1)
-    e_f, e_b = first_f, first_b
     if trees is not None:
+        # the front at every vertex (the output); what only weights the next pass (the back,
+        # and the front before the last pass) at the representatives when shared
+        shared = trees.shared and passes > 0
+        first_f = _gather(front_p, front_n, *_emitting(emitters)) if emitters is not None else tree_gather(
+            trees.vertex, trees.sides[0], radiance[idx], own=trees.own)
+        rep_f = first_f[trees.reps] if shared else first_f
+        back = trees.rep_sides[1] if shared else trees.sides[1]
+        rep_b = _gather(back.points, back.normals, *_emitting(emitters)) if emitters is not None else tree_gather(
+            trees.vertex, back, radiance[idx], own=trees.rep_own if shared else trees.own)
+        progress.advance(1)
+        e_f, e_b = rep_f, rep_b
         for k in range(passes):
             # a receiver in front of occluder j is shadowed from the light on j's back, and v.v.
+            if shared:
+                e_f, e_b = e_f[trees.rep_index], e_b[trees.rep_index]
             if faces_occlude:
                 w_back = np.maximum(e_b, 0.0)[trees.faces].mean(axis=1) / math.pi
                 w_front = np.maximum(e_f, 0.0)[trees.faces].mean(axis=1) / math.pi
@@ -317,12 +324,28 @@ def _shadowed(
             else:
                 w_back, w_front = np.maximum(e_b[idx], 0.0) / math.pi, np.maximum(e_f[idx], 0.0) / math.pi
                 own = trees.own
-            blocked = [tree_gather(trees.occluders, side, w_back, own=own) + tree_gather(trees.occluders, side, w_front, flip=True, own=own)
-                       for side in (trees.sides if k < passes - 1 else trees.sides[:1])]  # the last pass: the front is the output
-            e_f = first_f - blocked[0]
-            e_b = first_b - blocked[1] if len(blocked) > 1 else e_b
+            last = k == passes - 1
+            if last:  # the front at every vertex is the output
+                e_f = first_f - tree_gather(trees.occluders, trees.sides[0], w_back, own=own) - tree_gather(
+                    trees.occluders, trees.sides[0], w_front, flip=True, own=own)
+            else:
+                sides = trees.rep_sides if shared else trees.sides
+                own_s = None if own is None else (trees.rep_own if shared else own)
+                e_f, e_b = (first - tree_gather(trees.occluders, side, w_back, own=own_s)
+                            - tree_gather(trees.occluders, side, w_front, flip=True, own=own_s)
+                            for first, side in zip((rep_f, rep_b), sides, strict=True))  # fmt: skip
             progress.advance(1)
+        if passes == 0:
+            e_f = first_f
     else:
+        if emitters is not None:
+            src = _emitting(emitters)
+        else:
+            src = (elements.positions[idx], elements.normals[idx], elements.areas[idx], radiance[idx], idx)
+        first_f = _gather(front_p, front_n, *src)
+        first_b = _gather(back_p, back_n, *src)
+        progress.advance(1)
+        e_f, e_b = first_f, first_b
         if faces_occlude:
             faces, occ = _face_occluders(elements)
             centres = np.concatenate([occ[:, :3]] * 2)
@@ -344,6 +367,11 @@ def _shadowed(
             progress.advance(1)
     low = np.any(e_f < 0.0, axis=1) if n else np.zeros(0, dtype=bool)
     return np.maximum(e_f, 0.0), low
+
+
+def _emitting(emitters: EmitterDisks) -> tuple:
+    """``_gather``'s disk arguments for ``emitters`` (owned by no receiver)."""
+    return emitters.centres, emitters.normals, emitters.areas, emitters.radiance, np.full(emitters.size, -1, dtype=np.int64)
 
 
 def _merged(disks: EmitterDisks, count: int) -> EmitterDisks:
