@@ -49,6 +49,24 @@ def _covered(cover, w_q):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
+def _straddles(cover, w_q, cos_q, sin_q, ux_q, uy_q, uz_q, ux, uy, uz, sin_a):
+    """Some patch's cap (not yet covered) has its edge within angle ``asin(sin_a)`` of
+    direction u: a node of that angular radius there may cover part of it, which one cap
+    at its centre does not tell (it is opened instead)."""
+    cos_a = math.sqrt(max(0.0, 1.0 - sin_a * sin_a))
+    for q in range(w_q.shape[0]):
+        if w_q[q] <= 0.0 or cover[q] >= 1.0:
+            continue
+        cos_b = ux * ux_q[q] + uy * uy_q[q] + uz * uz_q[q]
+        # beta in (a_q - alpha, a_q + alpha), alpha = asin(sin_a), padded by the slack
+        outer = cos_q[q] * cos_a - sin_q[q] * sin_a  # cos(a_q + alpha)
+        inner = cos_q[q] * cos_a + sin_q[q] * sin_a if sin_q[q] > sin_a else 1.0  # cos(a_q - alpha)
+        if outer - REJECT_SLACK < cos_b < inner + REJECT_SLACK:
+            return True
+    return False
+
+
+@njit(cache=True, error_model="numpy", inline="always")
 def _cover(cover, w_q, a_q, cos_q, sin_q, d2_q, ux_q, uy_q, uz_q, patches, r2, ux, uy, uz, projected, vis_g):
     """Add one occluder (``projected`` area at unit direction u and squared distance
     ``r2``, visibility ``vis_g[g]`` per group) to every patch it is nearer than, as
@@ -77,8 +95,8 @@ def aimed_shadow_tree(points, normals, skip, start, stop, nodes, occ, own, vis, 
     behind the tangent plane, or outside the cone of the patches by more than its own
     cap); used whole when the receiver is beyond ``sqrt(nodes[q, N_OPEN_D2])`` from its
     centre, in front of its plane and nearer than every patch, as one occluder at its
-    centre of projected area ``min(a A, pi b^2)`` (``a`` the estimated mean ``|m.u|``) and
-    visibility ``(a S_g + D_g.u) / (a A)`` clipped to [0, 1]; else opened (a leaf's
+    centre of projected area ``P = min(a A, pi b^2)`` (``a`` the estimated mean ``|m.u|``) and
+    visibility ``(a S_g + D_g.u) / P`` clipped to [0, 1]; else opened (a leaf's
     occluders exactly as the brute-force kernel). With every node opened the result is the
     brute-force kernel's (the same terms, summed in tree order).
 
@@ -169,21 +187,23 @@ def aimed_shadow_tree(points, normals, skip, start, stop, nodes, occ, own, vis, 
                 lim = spread + 0.5 * math.pi * b / d + b / (d - b)
                 if lim < math.pi and ax * dx + ay * dy + az * dz <= d * math.cos(lim) - REJECT_SLACK * d:
                     continue
-                if d2 >= nodes[node, N_OPEN_D2] and height >= b and (d + b) * (d + b) < near2:
+                if d2 >= nodes[node, N_OPEN_D2] and height >= b and (d + b) * (d + b) < near2 and not _straddles(
+                        cover, w_q, cos_q, sin_q, ux_q, uy_q, uz_q, dx / d, dy / d, dz / d, b / d):
                     ux, uy, uz = dx / d, dy / d, dz / d
                     t = N_T
                     quad = (nodes[node, t] * ux * ux + nodes[node, t + 1] * uy * uy + nodes[node, t + 2] * uz * uz
                             + 2.0 * (nodes[node, t + 3] * ux * uy + nodes[node, t + 4] * ux * uz
                                      + nodes[node, t + 5] * uy * uz))  # fmt: skip
                     a = math.sqrt(max(quad, 0.0))
-                    proj = a * nodes[node, N_A]
+                    # its projected area, at most its bounding sphere's (layers stacked along u
+                    # cover it once); the light-weighted projected area per group over that
+                    proj = min(a * nodes[node, N_A], math.pi * b * b)
                     if proj > 0.0:
                         for g in range(n_groups):
                             c = N_G + N_GROUP_COLS * g
                             x = a * nodes[node, c] + nodes[node, c + 1] * ux + nodes[node, c + 2] * uy + nodes[node, c + 3] * uz
                             vis_g[g] = min(1.0, max(0.0, x / proj))
-                        _cover(cover, w_q, a_q, cos_q, sin_q, d2_q, ux_q, uy_q, uz_q, patches, d2, ux, uy, uz,
-                               min(proj, math.pi * b * b), vis_g)  # fmt: skip
+                        _cover(cover, w_q, a_q, cos_q, sin_q, d2_q, ux_q, uy_q, uz_q, patches, d2, ux, uy, uz, proj, vis_g)
                         if _covered(cover, w_q):
                             break
                     continue

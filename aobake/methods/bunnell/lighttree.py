@@ -107,7 +107,7 @@ def tree_gather(tree: DiskTree, receivers: Receivers, radiance, *, flip: bool = 
 #: Opening parameter of the aimed shadow pass's occluder tree: a cluster is one occluder
 #: when the receiver is farther than ``sqrt(AIMED_THETA) b`` from its centre (b its
 #: bounding radius). Measured in docs/bunnell-light.md.
-AIMED_THETA = 64.0
+AIMED_THETA = 4.0
 
 
 def _range_sums(values, start, stop):
