@@ -138,7 +138,7 @@ def test_large_meshes_bake_through_the_trees():
         _lit(s, [sun], theta=None)
 
 
-@pytest.mark.parametrize("knobs", [{}, {"faces_occlude": False}, {"aimed": False}])
+@pytest.mark.parametrize("knobs", [{}, {"faces_occlude": False}])
 def test_the_trees_with_every_cluster_opened_are_the_brute_force_passes(knobs):
     """The box (RectLight, one bounce): theta = inf (trees of the bounce, the shadow
     subtraction and the aimed pass, every cluster opened, no shared passes) equals the brute-force passes

@@ -6,7 +6,8 @@ as one occluder (its projected area and its light-weighted visibility from its s
 
 Imports numpy, numba, ``aobake.constants`` and other kernels only. numba caches each
 kernel by its own file's time stamp: after changing the inlined ``lightshadow._cap`` or
-``_overlap``, touch this file. Symbols as in ``aobake.kernels.lightshadow``; the tree is
+``_overlap``, touch this file. The helpers are not inlined: the same speed, and the cold
+compile 5 s of CPU instead of 8. Symbols as in ``aobake.kernels.lightshadow``; the tree is
 ``aobake.kernels.hierarchy``'s (preorder, skip pointers), the occluders in tree order.
 
 Node rows (float64): centre, bounding radius (disks included), summed area A, squared
@@ -39,7 +40,7 @@ STACK_DEPTH = 128
 REJECT_SLACK = 1e-9
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy")
 def _covered(cover, w_q):
     """Every patch seen is covered (its share saturated at 1)."""
     for q in range(w_q.shape[0]):
@@ -48,7 +49,7 @@ def _covered(cover, w_q):
     return True
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy")
 def _straddles(cover, w_q, cos_q, sin_q, ux_q, uy_q, uz_q, ux, uy, uz, sin_a):
     """Some patch's cap (not yet covered) has its edge within angle ``asin(sin_a)`` of
     direction u: a node of that angular radius there may cover part of it, which one cap
@@ -66,7 +67,7 @@ def _straddles(cover, w_q, cos_q, sin_q, ux_q, uy_q, uz_q, ux, uy, uz, sin_a):
     return False
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy")
 def _cover(cover, w_q, a_q, cos_q, sin_q, d2_q, ux_q, uy_q, uz_q, patches, r2, ux, uy, uz, projected, vis_g):
     """Add one occluder (``projected`` area at unit direction u and squared distance
     ``r2``, visibility ``vis_g[g]`` per group) to every patch it is nearer than, as
