@@ -50,13 +50,15 @@ def _covered(cover, w_q):
 
 
 @njit(cache=True, error_model="numpy")
-def _straddles(cover, w_q, cos_q, sin_q, ux_q, uy_q, uz_q, ux, uy, uz, sin_a):
-    """Some patch's cap (not yet covered) has its edge within angle ``asin(sin_a)`` of
-    direction u: a node of that angular radius there may cover part of it, which one cap
-    at its centre does not tell (it is opened instead)."""
+def _straddles(cover, w_q, cos_q, sin_q, ux_q, uy_q, uz_q, ux, uy, uz, sin_a, edge):
+    """Some patch's cap (not yet covered, of angular radius above ``asin(sin_a) / edge``
+    in sines) has its edge within angle ``asin(sin_a)`` of direction u: a node of that
+    angular radius there may cover part of it, which one cap at its centre does not tell
+    (it is opened instead). Nodes small against the cap (``edge`` of it) are not opened:
+    their misplaced share is small."""
     cos_a = math.sqrt(max(0.0, 1.0 - sin_a * sin_a))
     for q in range(w_q.shape[0]):
-        if w_q[q] <= 0.0 or cover[q] >= 1.0:
+        if w_q[q] <= 0.0 or cover[q] >= 1.0 or sin_a <= edge * sin_q[q]:
             continue
         cos_b = ux * ux_q[q] + uy * uy_q[q] + uz * uz_q[q]
         # beta in (a_q - alpha, a_q + alpha), alpha = asin(sin_a), padded by the slack
@@ -89,7 +91,7 @@ def _cover(cover, w_q, a_q, cos_q, sin_q, d2_q, ux_q, uy_q, uz_q, patches, r2, u
 
 
 @njit(cache=True, error_model="numpy", parallel=True)
-def aimed_shadow_tree(points, normals, skip, start, stop, nodes, occ, own, vis, patches, out):
+def aimed_shadow_tree(points, normals, skip, start, stop, nodes, occ, own, vis, patches, edge, out):
     """``out[i, g]``: ``lightshadow.aimed_shadow``'s blocked fraction with the occluders
     in a tree (``occ``, ``own``, ``vis`` in tree order). Each receiver walks the tree: a
     node is skipped when every occluder in it would be (farther than every patch seen,
@@ -110,6 +112,9 @@ def aimed_shadow_tree(points, normals, skip, start, stop, nodes, occ, own, vis, 
     own : (k,) int64
     vis : (k, 2, G) float64
     patches : (P, Q_SIZE) float64
+    edge : float >= 0
+        Nodes across a patch cap's edge are used whole when their angular radius is at
+        most ``edge`` times the cap's (sines); 0: always opened.
     out : (n, G) float64
         Overwritten.
     """
@@ -189,7 +194,7 @@ def aimed_shadow_tree(points, normals, skip, start, stop, nodes, occ, own, vis, 
                 if lim < math.pi and ax * dx + ay * dy + az * dz <= d * math.cos(lim) - REJECT_SLACK * d:
                     continue
                 if d2 >= nodes[node, N_OPEN_D2] and height >= b and (d + b) * (d + b) < near2 and not _straddles(
-                        cover, w_q, cos_q, sin_q, ux_q, uy_q, uz_q, dx / d, dy / d, dz / d, b / d):
+                        cover, w_q, cos_q, sin_q, ux_q, uy_q, uz_q, dx / d, dy / d, dz / d, b / d, edge):
                     ux, uy, uz = dx / d, dy / d, dz / d
                     t = N_T
                     quad = (nodes[node, t] * ux * ux + nodes[node, t + 1] * uy * uy + nodes[node, t + 2] * uz * uz

@@ -42,7 +42,15 @@ from ...progress import NullProgress, Progress
 from ...shading import AREA_KINDS, LightResult, LightStats, Shading, check_shading
 from ...tracing import tracer_for
 from .elements import DiskElements, build_elements
-from .lighttree import AIMED_THETA, LIGHT_THETA, DiskTree, Receivers, aimed_shadow_tree, tree_gather
+from .lighttree import (
+    AIMED_EDGE,
+    AIMED_THETA,
+    LIGHT_THETA,
+    DiskTree,
+    Receivers,
+    aimed_shadow_tree,
+    tree_gather,
+)
 from .options import BunnellOptions
 from .passes import SHARE_COS
 from .transfer import transfer
@@ -126,6 +134,7 @@ def disk_light(
     faces_occlude: bool = True,
     theta: float | None = LIGHT_THETA,
     aimed_theta: float = AIMED_THETA,
+    aimed_edge: float = AIMED_EDGE,
     share: bool = True,
     progress: Progress | None = None,
     ground: Ground | None = None,
@@ -155,8 +164,9 @@ def disk_light(
         Opening parameter of the cluster trees the bounced light and the shadow passes'
         subtraction go through (``inf``: every cluster opened, the brute-force sums);
         None: the brute-force passes themselves (O(n^2): at most BRUTE_MAX_VERTICES).
-    aimed_theta : float
-        Opening parameter of the aimed pass's occluder tree (with ``theta`` not None).
+    aimed_theta, aimed_edge : float
+        Opening parameters of the aimed pass's occluder tree (with ``theta`` not None):
+        ``lighttree.aimed_shadow_tree``.
     share : bool
         With ``theta`` not None: the aimed passes that only weight the next one are
         evaluated at one vertex per leaf of the vertex tree and shared with the leaf's
@@ -178,17 +188,17 @@ def disk_light(
         raise ValueError(f"theta=None (brute force) takes at most {BRUTE_MAX_VERTICES:,} vertices, got {n:,}")
     with numba_threads(options.threads):
         return _disk_light(surface, shading, options, bounces, shadow_passes, light_disks, aimed, faces_occlude,
-                           theta, aimed_theta, share, progress, ground)  # fmt: skip
+                           theta, (aimed_theta, aimed_edge), share, progress, ground)  # fmt: skip
 
 
 class _Trees:
     """The lit passes' trees and receivers of one scene (built once, used by every pass):
     both sides of every vertex as receivers, the vertex disks, the occluding triangles."""
 
-    def __init__(self, elements: DiskElements, theta: float, aimed_theta: float, faces_occlude: bool, share: bool = True):
+    def __init__(self, elements: DiskElements, theta: float, aimed: tuple, faces_occlude: bool, share: bool = True):
         idx = elements.emitter_index
         front_p, front_n, back_p, back_n = _sides(elements)
-        self.theta, self.aimed_theta = theta, aimed_theta
+        self.theta, self.aimed = theta, aimed  # (theta, edge) of the aimed pass's tree
         self.sides = (Receivers(front_p, front_n), Receivers(back_p, back_n))
         self.vertex = DiskTree(elements.positions[idx], elements.normals[idx], elements.areas[idx], theta)
         self.own = np.full(elements.n_vertices, -1, dtype=np.int64)  # each vertex's own disk
@@ -215,7 +225,7 @@ class _Trees:
 
 
 def _disk_light(
-    surface, shading, options, bounces, shadow_passes, light_disks, aimed, faces_occlude, theta, aimed_theta, share,
+    surface, shading, options, bounces, shadow_passes, light_disks, aimed, faces_occlude, theta, aimed_tree, share,
     progress, ground,
 ) -> LightResult:  # fmt: skip
     """:func:`disk_light` once the inputs are checked."""
@@ -235,7 +245,7 @@ def _disk_light(
     progress.advance(1)
     emitters = emitter_disks(elements, shading, lights, light_disks)
     bouncing = bounces > 0 and shading.reflects
-    trees = _Trees(elements, theta, aimed_theta, faces_occlude, share) if theta is not None and (emitters.size or bouncing) else None
+    trees = _Trees(elements, theta, aimed_tree, faces_occlude, share) if theta is not None and (emitters.size or bouncing) else None
     negative = np.zeros(n, dtype=bool)
     if emitters.size:
         if aimed:
@@ -496,10 +506,10 @@ def _aimed(
         for side, (pts, nrm) in enumerate(((front_p, front_n),) if last else ((front_p, front_n), (back_p, back_n))):
             if trees is not None and not last and trees.reps.shape[0] < n:
                 part = np.empty((trees.reps.shape[0], n_groups))
-                aimed_shadow_tree(pts[trees.reps], nrm[trees.reps], trees.occluders, occ_own, vis, rows, part, trees.aimed_theta)
+                aimed_shadow_tree(pts[trees.reps], nrm[trees.reps], trees.occluders, occ_own, vis, rows, part, *trees.aimed)
                 blocked[:] = part[trees.rep_index]
             elif trees is not None:
-                aimed_shadow_tree(pts, nrm, trees.occluders, occ_own, vis, rows, blocked, trees.aimed_theta)
+                aimed_shadow_tree(pts, nrm, trees.occluders, occ_own, vis, rows, blocked, *trees.aimed)
             else:
                 _kls.aimed_shadow(pts, nrm, occ, occ_own, vis, rows, blocked)
             lit[side] = first[side] * (1.0 - blocked)[:, :, None]

@@ -108,6 +108,10 @@ def tree_gather(tree: DiskTree, receivers: Receivers, radiance, *, flip: bool = 
 #: when the receiver is farther than ``sqrt(AIMED_THETA) b`` from its centre (b its
 #: bounding radius). Measured in docs/bunnell-light.md.
 AIMED_THETA = 4.0
+#: A cluster across the edge of a light patch's cap (as seen from the receiver) is used
+#: whole only when its angular radius is at most AIMED_EDGE times the cap's; larger ones
+#: are opened (0: always). Measured in docs/bunnell-light.md.
+AIMED_EDGE = 0.25
 
 
 def _range_sums(values, start, stop):
@@ -155,9 +159,13 @@ def aimed_nodes(tree: DiskTree, vis, theta: float = AIMED_THETA) -> np.ndarray:
     return nodes
 
 
-def aimed_shadow_tree(points, normals, tree: DiskTree, own, vis, patches, out, theta: float = AIMED_THETA) -> None:
+def aimed_shadow_tree(
+    points, normals, tree: DiskTree, own, vis, patches, out, theta: float = AIMED_THETA, edge: float = AIMED_EDGE
+) -> None:
     """``lightshadow.aimed_shadow`` with the occluders in ``tree`` (``own`` (k,), ``vis``
-    (k, 2, G) in disk order), written to ``out`` (n, G)."""
+    (k, 2, G) in disk order), written to ``out`` (n, G); ``theta`` and ``edge`` as in
+    ``lightshadowtree.aimed_shadow_tree`` (``theta = inf`` or ``edge = 0`` and any theta:
+    the brute-force kernel's result, up to the order of its sums)."""
     from ...kernels import lightshadowtree as _kst
 
     if tree.size == 0:
@@ -167,4 +175,4 @@ def aimed_shadow_tree(points, normals, tree: DiskTree, own, vis, patches, out, t
     vis_t = np.ascontiguousarray(vis[tree.order])
     nodes = aimed_nodes(tree, vis_t, theta)
     _kst.aimed_shadow_tree(np.ascontiguousarray(points), np.ascontiguousarray(normals), tree.skip, tree.start,
-                           tree.stop, nodes, occ, np.ascontiguousarray(own[tree.order]), vis_t, patches, out)  # fmt: skip
+                           tree.stop, nodes, occ, np.ascontiguousarray(own[tree.order]), vis_t, patches, float(edge), out)  # fmt: skip
