@@ -27,6 +27,7 @@ from ...constants import (
     LIGHT_DISKS,
     NEAR_OFFSET_REL,
     RAY_OFFSET_ULPS,
+    SERIAL_VERTICES,
 )
 from ...contacts import contact_origins, ray_offsets
 from ...errors import NumericalError
@@ -186,7 +187,8 @@ def disk_light(
     n = surface.n_vertices
     if theta is None and n > BRUTE_MAX_VERTICES:
         raise ValueError(f"theta=None (brute force) takes at most {BRUTE_MAX_VERTICES:,} vertices, got {n:,}")
-    with numba_threads(options.threads):
+    threads = 1 if options.threads is None and n <= SERIAL_VERTICES else options.threads
+    with numba_threads(threads):
         return _disk_light(surface, shading, options, bounces, shadow_passes, light_disks, aimed, faces_occlude,
                            theta, (aimed_theta, aimed_edge), share, progress, ground)  # fmt: skip
 
