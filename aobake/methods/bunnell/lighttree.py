@@ -111,7 +111,7 @@ AIMED_THETA = 4.0
 #: A cluster across the edge of a light patch's cap (as seen from the receiver) is used
 #: whole only when its angular radius is at most AIMED_EDGE times the cap's; larger ones
 #: are opened (0: always). Measured in docs/bunnell-light.md.
-AIMED_EDGE = 0.25
+AIMED_EDGE = 0.5
 
 
 def _range_sums(values, start, stop):
