@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from aobake.cli import main
+from aobake.errors import InputError
 from aobake.ground import Ground
 from aobake.io import load_mesh, read_bake
 from aobake.io.lights import read_shading
@@ -126,9 +127,10 @@ def test_the_box_against_the_ray_traced_reference():
     assert np.array_equal(again.irradiance, e)
 
 
-def test_large_meshes_bake_through_the_trees():
-    """No vertex limit through the trees (a 20,449-vertex plane under a distant light:
-    E_perp cos exact, nothing bounces); the brute-force passes refuse it."""
+def test_large_meshes_bake_through_the_trees(monkeypatch):
+    """Past the brute-force limit through the trees (a 20,449-vertex plane under a distant
+    light: E_perp cos exact, nothing bounces); the brute-force passes refuse it; past the
+    memory limit, one line naming the file."""
     s = _grid(1.0, 142)
     assert s.n_vertices > BRUTE_MAX_VERTICES
     sun = Light.make("distant", "sun", (1.0, 1.0, 1.0), direction=(0.0, 1.0, 1.0))
@@ -136,6 +138,12 @@ def test_large_meshes_bake_through_the_trees():
     np.testing.assert_allclose(r.irradiance, np.full((s.n_vertices, 3), 1 / math.sqrt(2)), rtol=1e-12)
     with pytest.raises(ValueError, match="at most 20,000"):
         _lit(s, [sun], theta=None)
+    import aobake.methods.bunnell.light as disk
+
+    monkeypatch.setattr(disk, "MAX_VERTICES", 20_000)
+    with pytest.raises(InputError, match="at most 20,000 ") as err:
+        _lit(s, [sun])
+    assert "\n" not in str(err.value)
 
 
 @pytest.mark.parametrize("knobs", [{}, {"faces_occlude": False}])

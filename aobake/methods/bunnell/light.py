@@ -30,7 +30,7 @@ from ...constants import (
     SERIAL_VERTICES,
 )
 from ...contacts import contact_origins, ray_offsets
-from ...errors import NumericalError
+from ...errors import InputError, NumericalError
 from ...ground import Ground
 from ...kernels import hierarchy as _h
 from ...kernels import lights as _kl
@@ -55,6 +55,10 @@ from .lighttree import (
 from .options import BunnellOptions
 from .passes import SHARE_COS
 from .transfer import transfer
+
+#: Most vertices lit: memory, about 2.2 kB a vertex through the trees (a 699,889-vertex
+#: scene under a rect light peaked at 1.5 GB), so about 11 GB here.
+MAX_VERTICES = 5_000_000
 
 #: Most vertices the brute-force passes (``theta=None``, the tests' reference) take: every
 #: pass costs O(n^2) (20,000 vertices: about a second per pass on two cores).
@@ -185,6 +189,12 @@ def disk_light(
     bounces = options.bounces if bounces is None else int(bounces)
     check_shading(surface, shading)
     n = surface.n_vertices
+    if n > MAX_VERTICES:
+        raise InputError(
+            surface.source,
+            f"{n:,} vertices: --method bunnell lights at most {MAX_VERTICES:,} (about 2.2 kB of memory a vertex; "
+            "use --method embree, or --effects ao)",
+        )
     if theta is None and n > BRUTE_MAX_VERTICES:
         raise ValueError(f"theta=None (brute force) takes at most {BRUTE_MAX_VERTICES:,} vertices, got {n:,}")
     threads = 1 if options.threads is None and n <= SERIAL_VERTICES else options.threads
