@@ -64,7 +64,7 @@ $(OUT)/cornell_box.png: $(OUT)/cornell_box.ply
 	@echo "previewed $< -> $@"
 
 test: $(STAMP) ## Run the test suite
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q --durations=20
 
 bench: bench-embree bench-bunnell bench-field bench-batch bench-process bench-light ## All benchmarks (ratios measured in one run; ~50 min on 2 cores)
 
@@ -91,12 +91,12 @@ bench-process: $(STAMP) ## Whole process (wall, peak RSS, bytes/vertex, stage sh
 bench-light: $(STAMP) ## Light transport: shadow/bounce ray rate vs AO rays, RMSE on the box (RectLight, emissive quad), error coverage
 	$(PY) bench/bench_light.py
 
-report: $(STAMP) ## Sweep accuracy vs time on the bundled meshes into report/ (tables + pareto.png)
-# the two procedural scenes carry their own floor: no field rows (a field is for one rigid object)
-	@mkdir -p report; for f in $(wildcard data/*.ply); do \
-	  stem=$$(basename $$f .ply); \
+report: $(STAMP) ## Sweep accuracy vs time on the bundled meshes into report/ (tables + pareto.png; the lit box: irradiance too)
+# the procedural scenes carry their own floor: no field rows (a field is for one rigid object)
+	@mkdir -p report; for f in $(wildcard data/*.ply) data/cornell_box.usda; do \
+	  stem=$$(basename $$f); stem=$${stem%.*}; \
 	  echo "## $$stem"; \
-	  opts="--up Y"; case $$stem in sphere_on_ground|box_stack) opts="--up Z --no-fields";; esac; \
+	  opts="--up Y"; case $$stem in sphere_on_ground|box_stack) opts="--up Z --no-fields";; cornell_box) opts="--no-fields";; esac; \
 	  $(AOBAKE) sweep $$f -o report/$$stem $$opts --quiet > report/$$stem.md.tmp && mv report/$$stem.md.tmp report/$$stem.md || exit 1; \
 	  cat report/$$stem.md; \
 	done

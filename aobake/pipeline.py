@@ -733,6 +733,8 @@ def sweep_file(
     plot: bool = True,
     progress: Progress | None = None,
     on_row=None,
+    lights: Sequence = (),
+    scene_lights: bool = True,
 ):
     """Bake ``source`` over the default grid of settings and score each against a
     high-ray Embree reference; write ``sweep.csv``, ``sweep.json`` and ``pareto.png``.
@@ -743,6 +745,11 @@ def sweep_file(
 
     The reference is cached in ``out_dir`` under a name keyed by the mesh's content,
     ``reference_rays`` and ``seed``, so repeated sweeps skip it.
+
+    A lit scene (its own lights and emitters unless ``scene_lights=False``, plus
+    ``lights``: ``--light`` specs) also gets irradiance rows (``quantity`` "irradiance",
+    :func:`_light_sweep`) and ``pareto_irradiance.png``; a scene without light sweeps
+    AO alone.
 
     Returns
     -------
@@ -761,6 +768,10 @@ def sweep_file(
 
         pyplot()  # matplotlib is checked before the work, not after it
     surface = as_surface(source)
+    from . import lighting
+
+    # read (and check) the light before any work; the plan is the reference method's
+    light = lighting.prepare(source, surface, "embree", {}, lights=lights, scene_lights=scene_lights)
     try:
         out_dir.mkdir(exist_ok=True)
     except OSError as exc:
@@ -787,20 +798,35 @@ def sweep_file(
     if fields:  # a different scene (the ground under the mesh): its own Pareto front
         up = up or surface.metadata.get("up_axis") or DEFAULT_UP_AXIS
         rows = rows + _field_sweep(surface, out_dir, key, up, reference_rays, seed, threads, repeats, on_row)
+    lit_rows, lit_meta = [], {}
+    if light is not None and light.lit:
+        lit_rows, lit_meta = _light_sweep(
+            surface, light, methods or METHODS, out_dir, key, reference_rays, seed, threads, repeats, on_row, progress
+        )
     meta = {
         "source": Path(str(source)).name,
         "n_vertices": surface.n_vertices,
         "reference": f"embree, {reference_rays} rays, seed {seed + 1}",
+        **lit_meta,
         "threads": threads,
         "version": __version__,
     }
     with atomic_write(out_dir / "sweep.csv") as tmp:
-        tmp.write_text(sweep.to_csv(rows))
+        tmp.write_text(sweep.to_csv(rows + lit_rows))
     with atomic_write(out_dir / "sweep.json") as tmp:
-        tmp.write_text(sweep.to_json(rows, meta) + "\n")
+        tmp.write_text(sweep.to_json(rows + lit_rows, meta) + "\n")
+    title = f"{meta['source']} ({surface.n_vertices} vertices)"
     if plot:
-        sweep.plot_sweep(rows, out_dir / "pareto.png", title=f"{meta['source']} ({surface.n_vertices} vertices)")
-    return rows
+        sweep.plot_sweep(rows, out_dir / "pareto.png", title=title)
+        if lit_rows:
+            sweep.plot_sweep(
+                lit_rows,
+                out_dir / "pareto_irradiance.png",
+                title=f"{title}: irradiance",
+                ylabel="relative RMSE of irradiance against the reference",
+                front_name="irradiance",
+            )
+    return rows + lit_rows
 
 
 def sweep_key(surface: Surface) -> str:
@@ -814,18 +840,103 @@ def sweep_key(surface: Surface) -> str:
     return digest.hexdigest()[:16]
 
 
-def _cached_reference(cache: Path, n: int) -> np.ndarray | None:
-    """A sweep's cached reference ``ao``, or None when there is none yet; a cache that is
-    not ``n`` finite values in [0, 1] (or holds pickled data) is an :class:`InputError`."""
+def light_key(light) -> str:
+    """The content key of a lit scene's light (16 hex digits): its lights, the faces'
+    albedo and emission and the effects planned, so another light is another reference."""
+    import dataclasses
+    import hashlib
+
+    digest = hashlib.sha256()
+    for item in light.shading.lights:
+        for f in dataclasses.fields(item):
+            value = getattr(item, f.name)
+            if isinstance(value, np.ndarray):
+                digest.update(np.ascontiguousarray(value, dtype=np.float64).tobytes())
+            else:
+                digest.update(repr(value).encode())
+    digest.update(np.ascontiguousarray(light.shading.face_albedo, dtype=np.float64).tobytes())
+    digest.update(np.ascontiguousarray(light.shading.face_emission, dtype=np.float64).tobytes())
+    digest.update(",".join(light.plan.effects).encode())
+    return digest.hexdigest()[:16]
+
+
+def _light_sweep(surface, light, methods, out_dir, key, reference_rays, seed, threads, repeats, on_row, progress):
+    """A lit scene's irradiance rows and their meta: each method of
+    :func:`aobake.tools.sweep.light_grid` timed (the light alone, not the AO) and scored
+    against Embree's irradiance at ``reference_rays`` samples per area light and 4x as
+    many paths (seed + 1, cached in ``out_dir``), at the default bounces. Bunnell's rows
+    are skipped with a warning on a mesh above its vertex limit."""
+    import warnings
+
+    from .io import atomic_write
+    from .methods import LIGHTING, make_options, run_light
+    from .tools import sweep
+
+    indirect = "indirect" in light.plan.effects
+    shading = light.shading
+    paths = 4 * reference_rays
+    name = f"reference_irradiance_{key}_{light_key(light)}_samples{reference_rays}_paths{paths}_seed{seed}.npy"
+    cache = out_dir / name
+    n = surface.n_vertices
+    reference = _cached_reference(cache, 3 * n, upper=math.inf)
+    if reference is None:
+        options = {"light_samples": reference_rays, "indirect_rays": paths, "seed": seed + 1, "threads": threads}
+        result = run_light("embree", surface, shading, options, progress, indirect=indirect)
+        reference = (result.direct + result.indirect).ravel()
+        with atomic_write(cache) as tmp:
+            np.save(tmp, reference)
+    reference = reference.reshape(n, 3)
+    meta = {"irradiance_reference": f"embree, {reference_rays} samples, {paths} paths, seed {seed + 1}"}
+    scale = float(np.sqrt(np.mean(reference**2)))  # the reference's RMS: errors are relative to it
+    if not scale > 0:
+        warnings.warn(
+            f"{Path(str(surface.source)).name}: no irradiance rows: the reference irradiance is 0 at every vertex",
+            stacklevel=2,
+        )
+        return [], meta
+    methods = [m for m in methods if m in LIGHTING]
+    if "bunnell" in methods:
+        from .methods.bunnell import light as disk
+
+        limit = getattr(disk, "MAX_VERTICES", None)
+        if limit is not None and n > limit:
+            warnings.warn(
+                f"{Path(str(surface.source)).name}: {n:,} vertices: no bunnell irradiance rows "
+                f"(--method bunnell lights at most {limit:,})",
+                stacklevel=2,
+            )
+            methods.remove("bunnell")
+
+    def compute(method, options):
+        if method == "embree":
+            options = {**options, "seed": seed, "threads": threads}
+            result = run_light("embree", surface, shading, options, indirect=indirect)
+        else:
+            from .methods.bunnell.light import disk_light
+
+            opts = make_options("bunnell", {"threads": threads})
+            result = disk_light(surface, shading, opts, bounces=opts.bounces if indirect else 0, **options)
+        return (result.direct + result.indirect) / scale, result.n_shadow_rays + result.n_bounce_rays
+
+    grid = sweep.light_grid(methods)
+    rows = sweep.run_sweep(compute, reference / scale, grid, repeats=repeats, on_row=on_row, quantity="irradiance")
+    return rows, meta
+
+
+def _cached_reference(cache: Path, n: int, upper: float = 1.0) -> np.ndarray | None:
+    """A sweep's cached reference (``ao``; irradiance flattened, ``upper`` inf), or None
+    when there is none yet; a cache that is not ``n`` finite values in [0, ``upper``] (or
+    holds pickled data) is an :class:`InputError`."""
     if not cache.exists():
         return None
     from .io import read_bake
 
     values = read_bake(cache)  # a 1-D float .npy, pickles refused
-    if values.shape != (n,) or not np.isfinite(values).all() or values.min() < 0 or values.max() > 1:
+    if values.shape != (n,) or not np.isfinite(values).all() or values.min() < 0 or values.max() > upper:
+        bounds = "[0, 1]" if upper == 1 else ">= 0"
         raise InputError(
             cache,
-            f"not a reference of {n} finite values in [0, 1]; delete it to recompute",
+            f"not a reference of {n} finite values {'in ' if upper == 1 else ''}{bounds}; delete it to recompute",
         )
     return values
 

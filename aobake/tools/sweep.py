@@ -26,6 +26,11 @@ ADAPTIVE_TOLERANCES = (0.05, 0.02)
 # (passes, theta, per-direction saturation); the last row: plain sums, for contrast
 BUNNELL_GRID = ((1, 2.0, True), (1, 4.0, True), (1, 8.0, True), (2, 2.0, True), (1, 4.0, False))
 FIELD_RESOLUTIONS = (8, 16, 32)
+#: A lit scene's irradiance rows: Embree (shadow samples per area light, indirect paths),
+#: its defaults (64, 256) among them; Bunnell's shadow passes after the distributing one
+#: (2 is its default), and its default passes with the published shadowing for contrast.
+LIGHT_EMBREE_GRID = ((4, 16), (16, 64), (64, 256), (256, 1024))
+LIGHT_BUNNELL_PASSES = (0, 1, 2)
 
 
 @dataclass(frozen=True)
@@ -33,7 +38,9 @@ class SweepRow:
     """One timed bake and its error against the reference (ao = 1 - A).
 
     ``seconds`` is the best of ``repeats`` runs; ``rays`` the rays cast (0 for methods
-    that cast none).
+    that cast none). ``quantity`` ``"irradiance"``: a lit scene's row, its errors over
+    vertices and RGB channels divided by the reference's RMS irradiance, so ``rmse`` is
+    the relative RMSE sqrt(sum (E - E_ref)^2 / sum E_ref^2).
     """
 
     method: str
@@ -46,6 +53,7 @@ class SweepRow:
     p99: float
     max_abs: float
     pareto: bool = False
+    quantity: str = "ao"
 
 
 def default_grid(methods: Iterable[str]) -> list[tuple[str, str, dict]]:
@@ -80,6 +88,30 @@ def field_grid() -> list[tuple[str, str, dict]]:
     ]
 
 
+def light_grid(methods: Iterable[str]) -> list[tuple[str, str, dict]]:
+    """The irradiance settings a sweep of a lit scene tries for each available method
+    (Embree: ``light_samples``/``indirect_rays``; Bunnell: ``disk_light`` keywords)."""
+    methods = set(methods)
+    grid: list[tuple[str, str, dict]] = []
+    if "embree" in methods:
+        grid += [
+            ("embree", f"samples={s} paths={p}", {"light_samples": s, "indirect_rays": p})
+            for s, p in LIGHT_EMBREE_GRID
+        ]
+    if "bunnell" in methods:
+        grid += [
+            ("bunnell", f"shadow passes={k}", {"shadow_passes": k}) for k in LIGHT_BUNNELL_PASSES
+        ]
+        grid += [
+            (
+                "bunnell",
+                "shadow passes=2 published",
+                {"shadow_passes": 2, "aimed": False, "faces_occlude": False},
+            )
+        ]
+    return grid
+
+
 def run_sweep(
     compute: Callable[[str, dict], tuple[np.ndarray, int]],
     reference: np.ndarray,
@@ -87,12 +119,16 @@ def run_sweep(
     *,
     repeats: int = 1,
     on_row: Callable[[SweepRow], None] | None = None,
+    quantity: str = "ao",
 ) -> list[SweepRow]:
-    """Time ``compute(method, options) -> (ao, rays)`` over ``grid`` and score each result.
+    """Time ``compute(method, options) -> (values, rays)`` over ``grid`` and score each
+    result against ``reference`` (same shape; every element one sample of the error).
 
     The first setting of each method is run once untimed first, so numba compilation
-    and cache loading never count. Returns the rows with ``pareto`` set on those no
-    other row beats in both seconds and RMSE.
+    and cache loading never count; a timed run during which numba still compiled (a
+    setting that takes another code path) is run again. Returns the rows (marked
+    ``quantity``) with ``pareto`` set on those no other row beats in both seconds and
+    RMSE.
     """
     rows = []
     warm = set()
@@ -102,9 +138,8 @@ def run_sweep(
             warm.add(method)
         best, ao, rays = float("inf"), None, 0
         for _ in range(max(1, repeats)):
-            t0 = time.perf_counter()
-            ao, rays = compute(method, dict(options))
-            best = min(best, time.perf_counter() - t0)
+            seconds, (ao, rays) = _timed(compute, method, options)
+            best = min(best, seconds)
         err = np.asarray(ao, dtype=np.float64) - reference
         row = SweepRow(
             method=method,
@@ -116,11 +151,26 @@ def run_sweep(
             mean_error=float(np.mean(err)),
             p99=float(np.percentile(np.abs(err), 99)),
             max_abs=float(np.abs(err).max()),
+            quantity=quantity,
         )
         rows.append(row)
         if on_row is not None:
             on_row(row)
     return mark_pareto(rows)
+
+
+def _timed(compute, method: str, options: dict):
+    """``(seconds, compute(method, options))``, run again when numba compiled in the run."""
+    from ..progress import CompileWatch
+
+    for _ in range(2):
+        with CompileWatch() as watch:
+            t0 = time.perf_counter()
+            out = compute(method, dict(options))
+            seconds = time.perf_counter() - t0
+        if not watch.count:
+            break
+    return seconds, out
 
 
 def mark_pareto(rows: list[SweepRow]) -> list[SweepRow]:
@@ -137,11 +187,26 @@ def mark_pareto(rows: list[SweepRow]) -> list[SweepRow]:
 
 
 def to_markdown(rows: list[SweepRow]) -> str:
-    """The table printed by ``aobake sweep`` (Pareto-optimal rows marked with *)."""
-    lines = [
-        "| method | settings | seconds | rays | RMSE | MAE | mean error | p99 | max | Pareto |",
-        "|---|---|---:|---:|---:|---:|---:|---:|---:|:---:|",
-    ]
+    """The table printed by ``aobake sweep`` (Pareto-optimal rows marked with *); a lit
+    scene's irradiance rows follow in a table of their own."""
+    ao = [r for r in rows if r.quantity == "ao"]
+    lit = [r for r in rows if r.quantity != "ao"]
+    text = _table(
+        ao, "| method | settings | seconds | rays | RMSE | MAE | mean error | p99 | max | Pareto |"
+    )
+    if lit:
+        text += (
+            "\n\nIrradiance (errors over vertices and RGB, divided by the reference's RMS irradiance):\n\n"
+            + _table(
+                lit,
+                "| method | settings | seconds | rays | rel. RMSE | rel. MAE | rel. mean error | rel. p99 | rel. max | Pareto |",
+            )
+        )
+    return text
+
+
+def _table(rows: list[SweepRow], header: str) -> str:
+    lines = [header, "|---|---|---:|---:|---:|---:|---:|---:|---:|:---:|"]
     for r in rows:
         lines.append(
             f"| {r.method} | {r.label} | {r.seconds:.3f} | {r.rays} | {r.rmse:.4f} | {r.mae:.4f} | "
@@ -150,23 +215,39 @@ def to_markdown(rows: list[SweepRow]) -> str:
     return "\n".join(lines)
 
 
+def _fields(rows: list[SweepRow]) -> list[str]:
+    """The columns written: ``quantity`` only when some row is not AO (an unlit scene's
+    files are what they were before irradiance rows existed)."""
+    names = list(SweepRow.__dataclass_fields__)
+    return names if any(r.quantity != "ao" for r in rows) else [n for n in names if n != "quantity"]
+
+
 def to_csv(rows: list[SweepRow]) -> str:
     buf = io.StringIO()
-    writer = csv.DictWriter(
-        buf, fieldnames=list(SweepRow.__dataclass_fields__), lineterminator="\n"
-    )
+    fields = _fields(rows)
+    writer = csv.DictWriter(buf, fieldnames=fields, lineterminator="\n")
     writer.writeheader()
     for r in rows:
-        writer.writerow(asdict(r))
+        writer.writerow({k: v for k, v in asdict(r).items() if k in fields})
     return buf.getvalue()
 
 
 def to_json(rows: list[SweepRow], meta: dict) -> str:
-    return json.dumps({"meta": meta, "rows": [asdict(r) for r in rows]}, indent=2, allow_nan=False)
+    fields = _fields(rows)
+    out = [{k: v for k, v in asdict(r).items() if k in fields} for r in rows]
+    return json.dumps({"meta": meta, "rows": out}, indent=2, allow_nan=False)
 
 
-def plot_sweep(rows: list[SweepRow], path, *, title: str = "") -> None:
-    """Error against seconds, log-log, one colour per method, the Pareto front drawn."""
+def plot_sweep(
+    rows: list[SweepRow],
+    path,
+    *,
+    title: str = "",
+    ylabel: str = "RMSE of ao against the reference",
+    front_name: str = "bake",
+) -> None:
+    """Error against seconds, log-log, one colour per method, the Pareto front drawn
+    (``front_name`` names it; field rows have their own)."""
     plt = pyplot()
     fig, ax = plt.subplots(figsize=(7, 5))
     for method in sorted({r.method for r in rows}):
@@ -193,14 +274,14 @@ def plot_sweep(rows: list[SweepRow], path, *, title: str = "") -> None:
                 color="k",
                 lw=1,
                 ls=style,
-                label=f"Pareto front ({'field on the ground' if scenario == 'field' else 'bake'})",
+                label=f"Pareto front ({'field on the ground' if scenario == 'field' else front_name})",
             )
     ax.set_xscale("log")
     ax.set_yscale("log")
     ax.xaxis.set_minor_formatter(plt.NullFormatter())
     ax.yaxis.set_minor_formatter(plt.NullFormatter())
     ax.set_xlabel("seconds")
-    ax.set_ylabel("RMSE of ao against the reference")
+    ax.set_ylabel(ylabel)
     ax.grid(True, which="both", alpha=0.3)
     ax.legend()
     if title:
