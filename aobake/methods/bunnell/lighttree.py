@@ -164,8 +164,9 @@ def aimed_shadow_tree(
 ) -> None:
     """``lightshadow.aimed_shadow`` with the occluders in ``tree`` (``own`` (k,), ``vis``
     (k, 2, G) in disk order), written to ``out`` (n, G); ``theta`` and ``edge`` as in
-    ``lightshadowtree.aimed_shadow_tree`` (``theta = inf`` or ``edge = 0`` and any theta:
-    the brute-force kernel's result, up to the order of its sums)."""
+    ``lightshadowtree.aimed_shadow_tree`` (``theta = inf``: the brute-force kernel's result,
+    up to the order of its sums; ``edge = 0``: clusters used whole only away from every
+    patch cap's edge, where a flat one adds exactly)."""
     from ...kernels import lightshadowtree as _kst
 
     if tree.size == 0:
