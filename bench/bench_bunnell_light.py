@@ -9,12 +9,20 @@ Goal: relative RMSE <= 0.08 at the defaults (aimed, two shadow passes, one bounc
 "published": every shadow pass as the GPU Gems 2 chapter's (isotropic), the vertex disks
 occluding; "aimed": the emitted light's passes aimed at the lights (the bounced light's
 passes as published), the vertex disks or the triangles occluding in all of them.
+The default scheme is measured twice: through the cluster trees (the default) and with
+the brute-force passes (``theta=None``). ``--big N`` instead bakes bench/common.py's
+spheres on a floor at about N vertices under a rect light (or ``--big-light point``) with
+both methods at their defaults: seconds and peak memory of each, in child processes.
 docs/bunnell-light.md records runs.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import resource
+import subprocess
+import sys
 import time
 
 from bench_light import references, rel_rmse
@@ -34,7 +42,14 @@ def main():
     parser.add_argument("--ref-paths", type=int, default=16384)
     parser.add_argument("--passes", default="0,1,2,3", help="shadow passes to measure")
     parser.add_argument("--disks", default="256", help="disks per area light to measure")
+    parser.add_argument("--big", type=int, default=0, help="bake a lit scene of about N vertices instead")
+    parser.add_argument("--big-light", default="rect", choices=("rect", "point"))
+    parser.add_argument("--child", default="", help=argparse.SUPPRESS)
     args = parser.parse_args()
+    if args.child:
+        return child(args.child, args.big, args.big_light)
+    if args.big:
+        return big(args.big, args.big_light)
     path = DATA_DIR / "cornell_box.usda"
     surface = load_mesh(path)
     shading = read_shading(path, surface)
@@ -49,7 +64,8 @@ def main():
         e_ref = ref.irradiance[:scored]
         print(f"{name}: embree defaults rel. RMSE {rel_rmse(emb.irradiance[:scored], e_ref):.4f} in {t_emb:.3f} s "
               f"(reference {t_ref:.1f} s)")
-        schemes = {"published": {"aimed": False, "faces_occlude": False}, "aimed, disks occlude": {"faces_occlude": False}, "aimed, faces occlude": {}}
+        schemes = {"published": {"aimed": False, "faces_occlude": False}, "aimed, disks occlude": {"faces_occlude": False},
+                   "aimed, faces occlude (brute force)": {"theta": None}, "aimed, faces occlude": {}}  # fmt: skip
         for what, knobs in schemes.items():
             for disks in args.disks.split(","):
                 for passes in args.passes.split(","):
@@ -62,6 +78,50 @@ def main():
                           f"{rel_rmse(r.irradiance[:scored], e_ref):.4f} (direct {rel_rmse(r.direct[:scored], ref.direct[:scored]):.4f}, "
                           f"indirect {rel_rmse(r.indirect[:scored], ref.indirect[:scored]):.4f}); "
                           f"{r.negative} vertices set from negative to 0; {dt:.3f} s ({t_emb / dt:.2f}x embree's speed)")
+
+
+def lit_scene(n, kind):
+    """bench/common.py's spheres on a floor (z up, balls 2 tall) lit from above by a
+    2 x 2 rect light at z = 3.5 (radiance 2), or a point light there (intensity 20)."""
+    from aobake.shading import Light, default_shading
+
+    import common
+
+    s, desc = common.spheres_on_ground(n)
+    if kind == "rect":
+        light = Light.make("rect", "panel", (2.0,) * 3, position=(0.5, 0.3, 3.5), u=(1.0, 0, 0), v=(0, -1.0, 0))
+    else:
+        light = Light.make("point", "lamp", (20.0,) * 3, position=(0.5, 0.3, 3.5))
+    return s, default_shading(s.n_vertices, s.n_faces, [light]), desc
+
+
+def child(method, n, kind):
+    """One method's bake of the lit scene in this process: prints seconds and peak RSS."""
+    import numpy as np
+
+    s, sh, _ = lit_scene(n, kind)
+    t, c = time.perf_counter(), time.process_time()
+    r = disk_light(s, sh) if method == "bunnell" else irradiance(s, sh)
+    dt, cpu = time.perf_counter() - t, time.process_time() - c
+    np.save(f"/tmp/bench_bunnell_light_{method}_{kind}_{n}.npy", r.irradiance)
+    print(json.dumps({"seconds": dt, "cpu": cpu, "peak_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+                      "negative": int(getattr(r, "negative", 0))}))  # fmt: skip
+
+
+def big(n, kind):
+    import numpy as np
+
+    _, _, desc = lit_scene(n, kind)  # cache the scene before timing
+    print(f"scene: {desc}, {kind} light; each method in its own process (kernels cached)")
+    out = {}
+    for method in ("bunnell", "embree"):
+        cmd = [sys.executable, __file__, "--child", method, "--big", str(n), "--big-light", kind]
+        run = json.loads(subprocess.run(cmd, check=True, capture_output=True, text=True).stdout.strip().splitlines()[-1])
+        out[method] = np.load(f"/tmp/bench_bunnell_light_{method}_{kind}_{n}.npy")
+        print(f"  {method} defaults: {run['seconds']:.2f} s ({run['cpu']:.2f} s of CPU), peak RSS {run['peak_mb']:.0f} MB"
+              + (f", {run['negative']} vertices set from negative to 0" if method == "bunnell" else ""))
+    print(f"  bunnell against embree's defaults: rel. RMSE {rel_rmse(out['bunnell'], out['embree']):.4f}")
+
 
 if __name__ == "__main__":
     main()

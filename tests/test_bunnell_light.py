@@ -17,7 +17,7 @@ from aobake.io import load_mesh, read_bake
 from aobake.io.lights import read_shading
 from aobake.mesh import surface_from_arrays
 from aobake.methods.bunnell import BunnellOptions
-from aobake.methods.bunnell.light import MAX_VERTICES, disk_light
+from aobake.methods.bunnell.light import BRUTE_MAX_VERTICES, disk_light
 from aobake.methods.embree.light import irradiance
 from aobake.shading import Light, Shading, default_shading
 from aobake.testing.scenes import ground_grid, sphere
@@ -115,7 +115,7 @@ def test_the_box_against_the_ray_traced_reference():
     """The bundled box (RectLight, one bounce) at the defaults: relative RMSE of the
     irradiance within the goal, 0.08, of a 256-sample reference (0.048 against 4,096
     samples and 16,384 paths, docs/bunnell-light.md); finite and non-negative, the same
-    on one thread."""
+    on two threads."""
     surface = load_mesh(CORNELL)
     shading = read_shading(CORNELL, surface)
     ref = irradiance(surface, shading, n_samples=256, n_indirect=256, seed=3)
@@ -123,15 +123,47 @@ def test_the_box_against_the_ray_traced_reference():
     e, e_ref = r.irradiance, ref.irradiance
     assert np.isfinite(e).all() and e.min() >= 0
     assert math.sqrt(((e - e_ref) ** 2).sum() / (e_ref**2).sum()) < 0.08
-    again = disk_light(surface, shading, BunnellOptions(threads=1))
+    again = disk_light(surface, shading, BunnellOptions(threads=2))  # the default is one thread below SERIAL_VERTICES
     assert np.array_equal(again.irradiance, e)
 
 
-def test_large_meshes_are_refused_with_one_line():
+def test_large_meshes_bake_through_the_trees(monkeypatch):
+    """Past the brute-force limit through the trees (a 20,449-vertex plane under a distant
+    light: E_perp cos exact, nothing bounces); the brute-force passes refuse it; past the
+    memory limit, one line naming the file."""
     s = _grid(1.0, 142)
-    assert s.n_vertices > MAX_VERTICES
-    with pytest.raises(InputError, match="at most 20,000"):
-        _lit(s, [Light.make("distant", "sun", (1.0, 1.0, 1.0), direction=(0.0, 0.0, 1.0))])
+    assert s.n_vertices > BRUTE_MAX_VERTICES
+    sun = Light.make("distant", "sun", (1.0, 1.0, 1.0), direction=(0.0, 1.0, 1.0))
+    r = _lit(s, [sun])
+    np.testing.assert_allclose(r.irradiance, np.full((s.n_vertices, 3), 1 / math.sqrt(2)), rtol=1e-12)
+    with pytest.raises(ValueError, match="at most 20,000"):
+        _lit(s, [sun], theta=None)
+    import aobake.methods.bunnell.light as disk
+
+    monkeypatch.setattr(disk, "MAX_VERTICES", 20_000)
+    with pytest.raises(InputError, match="at most 20,000 ") as err:
+        _lit(s, [sun])
+    assert "\n" not in str(err.value)
+
+
+@pytest.mark.parametrize("knobs", [{}, {"faces_occlude": False}])
+def test_the_trees_with_every_cluster_opened_are_the_brute_force_passes(knobs):
+    """The box (RectLight, one bounce): theta = inf (trees of the bounce, the shadow
+    subtraction and the aimed pass, every cluster opened, no shared passes) equals the brute-force passes
+    (float32 lists in the transfer walk: 1e-6 of the peak); at the defaults within 1% of
+    them (relative RMSE)."""
+    surface = load_mesh(CORNELL)
+    shading = read_shading(CORNELL, surface)
+    brute = disk_light(surface, shading, theta=None, **knobs)
+    opened = disk_light(surface, shading, theta=math.inf, aimed_theta=math.inf, share=False, **knobs)
+    peak = brute.irradiance.max()
+    assert np.abs(opened.direct - brute.direct).max() < 1e-6 * peak
+    assert np.abs(opened.indirect - brute.indirect).max() < 1e-6 * peak
+    assert brute.indirect.max() > 0.01 * peak
+    if not knobs:
+        tree = disk_light(surface, shading)
+        e, e_ref = tree.irradiance, brute.irradiance
+        assert math.sqrt(((e - e_ref) ** 2).sum() / (e_ref**2).sum()) < 0.01
 
 
 def test_dome_is_the_disk_ao_times_pi_l():

@@ -3,10 +3,13 @@ scheme's switches for tests and the bench, and :func:`run` for the method regist
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 from ..._types import AOArray
-from ...checks import check_result
+from ...checks import check_result, numba_threads
+from ...constants import SERIAL_VERTICES
 from ...ground import Ground, plane_occlusion, reach_cosines
 from ...mesh import Surface
 from ...options import build
@@ -110,6 +113,14 @@ def estimate(
     O(n^2), no tree: the hierarchy's reference)."""
     scheme = Scheme() if scheme is None else scheme
     check_blend(scheme.combine, options.passes)  # before any work
+    if options.threads is None and surface.n_vertices <= SERIAL_VERTICES:
+        options = dataclasses.replace(options, threads=1)  # a small mesh: see SERIAL_VERTICES
+    with numba_threads(options.threads):
+        return _estimate(surface, options, progress, scheme, exact, tree, ground)
+
+
+def _estimate(surface, options, progress, scheme, exact, tree, ground) -> AOArray:
+    """:func:`estimate` once its inputs are checked."""
     elements = build_elements(surface)
     given, tree = tree, None
     if not exact and elements.n_emitters > 0:

@@ -27,10 +27,12 @@ from ...constants import (
     LIGHT_DISKS,
     NEAR_OFFSET_REL,
     RAY_OFFSET_ULPS,
+    SERIAL_VERTICES,
 )
 from ...contacts import contact_origins, ray_offsets
 from ...errors import InputError, NumericalError
 from ...ground import Ground
+from ...kernels import hierarchy as _h
 from ...kernels import lights as _kl
 from ...kernels import lightshadow as _kls
 from ...kernels import rays as _k
@@ -41,12 +43,26 @@ from ...progress import NullProgress, Progress
 from ...shading import AREA_KINDS, LightResult, LightStats, Shading, check_shading
 from ...tracing import tracer_for
 from .elements import DiskElements, build_elements
+from .lighttree import (
+    AIMED_EDGE,
+    AIMED_THETA,
+    LIGHT_THETA,
+    DiskTree,
+    Receivers,
+    aimed_shadow_tree,
+    tree_gather,
+)
 from .options import BunnellOptions
+from .passes import SHARE_COS
 from .transfer import transfer
 
-#: Most vertices the brute-force transfer takes: every pass costs O(n^2) (4 n^2 disk
-#: pairs; 20,000 vertices: about a second per pass on two cores) until the tree lands.
-MAX_VERTICES = 20_000
+#: Most vertices lit: memory, about 2.2 kB a vertex through the trees (a 699,889-vertex
+#: scene under a rect light peaked at 1.5 GB), so about 11 GB here.
+MAX_VERTICES = 5_000_000
+
+#: Most vertices the brute-force passes (``theta=None``, the tests' reference) take: every
+#: pass costs O(n^2) (20,000 vertices: about a second per pass on two cores).
+BRUTE_MAX_VERTICES = 20_000
 
 #: Patches each light (and the emitting triangles together) is cut into for the aimed
 #: shadow pass: every receiver, occluder and patch is a term.
@@ -121,6 +137,10 @@ def disk_light(
     light_disks: int = LIGHT_DISKS,
     aimed: bool = True,
     faces_occlude: bool = True,
+    theta: float | None = LIGHT_THETA,
+    aimed_theta: float = AIMED_THETA,
+    aimed_edge: float = AIMED_EDGE,
+    share: bool = True,
     progress: Progress | None = None,
     ground: Ground | None = None,
 ) -> LightResult:
@@ -145,6 +165,17 @@ def disk_light(
         from every direction alike).
     faces_occlude : bool
         The triangles occlude (False: the vertex disks, as published).
+    theta : float or None
+        Opening parameter of the cluster trees the bounced light and the shadow passes'
+        subtraction go through (``inf``: every cluster opened, the brute-force sums);
+        None: the brute-force passes themselves (O(n^2): at most BRUTE_MAX_VERTICES).
+    aimed_theta, aimed_edge : float
+        Opening parameters of the aimed pass's occluder tree (with ``theta`` not None):
+        ``lighttree.aimed_shadow_tree``.
+    share : bool
+        With ``theta`` not None: the aimed passes that only weight the next one are
+        evaluated at one vertex per leaf of the vertex tree and shared with the leaf's
+        vertices of like normal (as the AO's later passes); False: at every vertex.
     ground : aobake.ground.Ground, optional
         Occludes the shadow rays and the dome; its reflected light is not modelled.
 
@@ -161,15 +192,53 @@ def disk_light(
     if n > MAX_VERTICES:
         raise InputError(
             surface.source,
-            f"{n:,} vertices: --method bunnell lights at most {MAX_VERTICES:,} until its transfer has a tree "
-            "(use --method embree, or --effects ao)",
+            f"{n:,} vertices: --method bunnell lights at most {MAX_VERTICES:,} (about 2.2 kB of memory a vertex; "
+            "use --method embree, or --effects ao)",
         )
-    with numba_threads(options.threads):
-        return _disk_light(surface, shading, options, bounces, shadow_passes, light_disks, aimed, faces_occlude, progress, ground)
+    if theta is None and n > BRUTE_MAX_VERTICES:
+        raise ValueError(f"theta=None (brute force) takes at most {BRUTE_MAX_VERTICES:,} vertices, got {n:,}")
+    threads = 1 if options.threads is None and n <= SERIAL_VERTICES else options.threads
+    with numba_threads(threads):
+        return _disk_light(surface, shading, options, bounces, shadow_passes, light_disks, aimed, faces_occlude,
+                           theta, (aimed_theta, aimed_edge), share, progress, ground)  # fmt: skip
+
+
+class _Trees:
+    """The lit passes' trees and receivers of one scene (built once, used by every pass):
+    both sides of every vertex as receivers, the vertex disks, the occluding triangles."""
+
+    def __init__(self, elements: DiskElements, theta: float, aimed: tuple, faces_occlude: bool, share: bool = True):
+        idx = elements.emitter_index
+        front_p, front_n, back_p, back_n = _sides(elements)
+        self.theta, self.aimed = theta, aimed  # (theta, edge) of the aimed pass's tree
+        self.sides = (Receivers(front_p, front_n), Receivers(back_p, back_n))
+        self.vertex = DiskTree(elements.positions[idx], elements.normals[idx], elements.areas[idx], theta)
+        self.own = np.full(elements.n_vertices, -1, dtype=np.int64)  # each vertex's own disk
+        self.own[idx] = np.arange(idx.shape[0])
+        # the passes that only weight the next one are evaluated at one vertex per leaf of
+        # the vertex tree (the AO's pass representatives) and shared with the leaf
+        rep_of = np.arange(elements.n_vertices, dtype=np.int64)
+        if self.vertex.size and share:
+            _h.leaf_representatives(elements.positions, elements.normals, elements.areas, idx[self.vertex.order],
+                                    self.vertex.skip, self.vertex.start, self.vertex.stop, SHARE_COS, rep_of)  # fmt: skip
+        self.reps, self.rep_index = np.unique(rep_of, return_inverse=True)
+        self.shared = self.reps.shape[0] < elements.n_vertices
+        if self.shared:
+            self.rep_sides = (Receivers(front_p[self.reps], front_n[self.reps]), Receivers(back_p[self.reps], back_n[self.reps]))
+            self.rep_own = self.own[self.reps]
+        else:
+            self.rep_sides, self.rep_own = self.sides, self.own
+        if faces_occlude:
+            self.faces, occ = _face_occluders(elements)
+            self.occluders = DiskTree(occ[:, :3], occ[:, 3:6], occ[:, 6], theta)
+            self.occ_own = np.full(len(self.faces), -1, dtype=np.int64)
+        else:
+            self.faces, self.occluders, self.occ_own = None, self.vertex, idx
 
 
 def _disk_light(
-    surface, shading, options, bounces, shadow_passes, light_disks, aimed, faces_occlude, progress, ground
+    surface, shading, options, bounces, shadow_passes, light_disks, aimed, faces_occlude, theta, aimed_tree, share,
+    progress, ground,
 ) -> LightResult:  # fmt: skip
     """:func:`disk_light` once the inputs are checked."""
     n = surface.n_vertices
@@ -187,14 +256,16 @@ def _disk_light(
         direct = direct + dome
     progress.advance(1)
     emitters = emitter_disks(elements, shading, lights, light_disks)
+    bouncing = bounces > 0 and shading.reflects
+    trees = _Trees(elements, theta, aimed_tree, faces_occlude, share) if theta is not None and (emitters.size or bouncing) else None
     negative = np.zeros(n, dtype=bool)
     if emitters.size:
         if aimed:
             patches = _merged(emitter_disks(elements, shading, lights, LIGHT_PATCHES), LIGHT_PATCHES)
             emitting = _emitting_vertices(surface, shading)
-            lit, low = _aimed(elements, emitters, patches, shadow_passes, progress, emitting, faces_occlude)
+            lit, low = _aimed(elements, emitters, patches, shadow_passes, progress, emitting, faces_occlude, trees)
         else:
-            lit, low = _shadowed(elements, emitters, None, shadow_passes, progress, faces_occlude)
+            lit, low = _shadowed(elements, emitters, None, shadow_passes, progress, faces_occlude, trees)
         direct = direct + lit
         negative |= low
     else:
@@ -207,7 +278,7 @@ def _disk_light(
         radiance = albedo * last / math.pi
         if not np.any(radiance > 0):
             break
-        last, low = _shadowed(elements, None, radiance, shadow_passes, progress, faces_occlude)
+        last, low = _shadowed(elements, None, radiance, shadow_passes, progress, faces_occlude, trees)
         indirect += last
         negative |= low
     progress.finish()
@@ -235,7 +306,8 @@ def _gather(points, normals, centres, disk_normals, areas, radiance, own) -> np.
 
 
 def _shadowed(
-    elements: DiskElements, emitters: EmitterDisks | None, radiance, passes: int, progress, faces_occlude: bool = True
+    elements: DiskElements, emitters: EmitterDisks | None, radiance, passes: int, progress, faces_occlude: bool = True,
+    trees: _Trees | None = None,
 ) -> tuple:  # fmt: skip
     """Irradiance at the vertices (front side) from ``emitters`` (or, ``radiance`` (n, 3):
     the vertices' own disks reflecting), shadowed by the triangles (``faces_occlude``;
@@ -246,40 +318,82 @@ def _shadowed(
     subtracts, at each receiver, ``G E_{k-1}`` of every vertex disk (two-sided: an
     occluder blocks from either side), ``E_{k-1}`` the light pass k - 1 left on the disk's
     side facing away from the receiver (what the disk stands in front of), ``G`` the
-    transfer's ``A |cos_e| cos_r / (pi r^2 + A)``."""
+    transfer's ``A |cos_e| cos_r / (pi r^2 + A)``. With ``trees`` the vertex disks' light
+    and the subtraction go through them (``lighttree.tree_gather``); else every pair."""
     idx = elements.emitter_index
     n = elements.n_vertices
     front_p, front_n, back_p, back_n = _sides(elements)
-    if emitters is not None:
-        src = (emitters.centres, emitters.normals, emitters.areas, emitters.radiance, np.full(emitters.size, -1, dtype=np.int64))
-    else:
-        src = (elements.positions[idx], elements.normals[idx], elements.areas[idx], radiance[idx], idx)
-    first_f = _gather(front_p, front_n, *src)
-    first_b = _gather(back_p, back_n, *src)
-    progress.advance(1)
-    e_f, e_b = first_f, first_b
-    if faces_occlude:
-        faces, occ = _face_occluders(elements)
-        centres = np.concatenate([occ[:, :3]] * 2)
-        normals = np.concatenate([occ[:, 3:6], -occ[:, 3:6]])
-        areas = np.concatenate([occ[:, 6]] * 2)
-        own = np.full(2 * len(faces), -1, dtype=np.int64)
-    else:
-        centres = np.concatenate([elements.positions[idx]] * 2)
-        normals = np.concatenate([elements.normals[idx], -elements.normals[idx]])
-        areas = np.concatenate([elements.areas[idx]] * 2)
-        own = np.concatenate([idx, idx])
-    for _ in range(passes):
-        # a receiver in front of disk j is shadowed from the light on j's back, and v.v.
-        if faces_occlude:
-            weight = np.concatenate([np.maximum(e_b, 0.0)[faces].mean(axis=1), np.maximum(e_f, 0.0)[faces].mean(axis=1)]) / math.pi
-        else:
-            weight = np.concatenate([np.maximum(e_b[idx], 0.0), np.maximum(e_f[idx], 0.0)]) / math.pi
-        e_f = first_f - _gather(front_p, front_n, centres, normals, areas, weight, own)
-        e_b = first_b - _gather(back_p, back_n, centres, normals, areas, weight, own)
+    if trees is not None:
+        # the front at every vertex (the output); what only weights the next pass (the back,
+        # and the front before the last pass) at the representatives when shared
+        shared = trees.shared and passes > 0
+        first_f = _gather(front_p, front_n, *_emitting(emitters)) if emitters is not None else tree_gather(
+            trees.vertex, trees.sides[0], radiance[idx], own=trees.own)
+        rep_f = first_f[trees.reps] if shared else first_f
+        back = trees.rep_sides[1] if shared else trees.sides[1]
+        rep_b = _gather(back.points, back.normals, *_emitting(emitters)) if emitters is not None else tree_gather(
+            trees.vertex, back, radiance[idx], own=trees.rep_own if shared else trees.own)
         progress.advance(1)
+        e_f, e_b = rep_f, rep_b
+        for k in range(passes):
+            # a receiver in front of occluder j is shadowed from the light on j's back, and v.v.
+            if shared:
+                e_f, e_b = e_f[trees.rep_index], e_b[trees.rep_index]
+            if faces_occlude:
+                w_back = np.maximum(e_b, 0.0)[trees.faces].mean(axis=1) / math.pi
+                w_front = np.maximum(e_f, 0.0)[trees.faces].mean(axis=1) / math.pi
+                own = None
+            else:
+                w_back, w_front = np.maximum(e_b[idx], 0.0) / math.pi, np.maximum(e_f[idx], 0.0) / math.pi
+                own = trees.own
+            last = k == passes - 1
+            if last:  # the front at every vertex is the output
+                e_f = first_f - tree_gather(trees.occluders, trees.sides[0], w_back, own=own) - tree_gather(
+                    trees.occluders, trees.sides[0], w_front, flip=True, own=own)
+            else:
+                sides = trees.rep_sides if shared else trees.sides
+                own_s = None if own is None else (trees.rep_own if shared else own)
+                e_f, e_b = (first - tree_gather(trees.occluders, side, w_back, own=own_s)
+                            - tree_gather(trees.occluders, side, w_front, flip=True, own=own_s)
+                            for first, side in zip((rep_f, rep_b), sides, strict=True))  # fmt: skip
+            progress.advance(1)
+        if passes == 0:
+            e_f = first_f
+    else:
+        if emitters is not None:
+            src = _emitting(emitters)
+        else:
+            src = (elements.positions[idx], elements.normals[idx], elements.areas[idx], radiance[idx], idx)
+        first_f = _gather(front_p, front_n, *src)
+        first_b = _gather(back_p, back_n, *src)
+        progress.advance(1)
+        e_f, e_b = first_f, first_b
+        if faces_occlude:
+            faces, occ = _face_occluders(elements)
+            centres = np.concatenate([occ[:, :3]] * 2)
+            normals = np.concatenate([occ[:, 3:6], -occ[:, 3:6]])
+            areas = np.concatenate([occ[:, 6]] * 2)
+            own = np.full(2 * len(faces), -1, dtype=np.int64)
+        else:
+            centres = np.concatenate([elements.positions[idx]] * 2)
+            normals = np.concatenate([elements.normals[idx], -elements.normals[idx]])
+            areas = np.concatenate([elements.areas[idx]] * 2)
+            own = np.concatenate([idx, idx])
+        for _ in range(passes):
+            if faces_occlude:
+                weight = np.concatenate([np.maximum(e_b, 0.0)[faces].mean(axis=1), np.maximum(e_f, 0.0)[faces].mean(axis=1)]) / math.pi
+            else:
+                weight = np.concatenate([np.maximum(e_b[idx], 0.0), np.maximum(e_f[idx], 0.0)]) / math.pi
+            e_f = first_f - _gather(front_p, front_n, centres, normals, areas, weight, own)
+            e_b = first_b - _gather(back_p, back_n, centres, normals, areas, weight, own)
+            progress.advance(1)
     low = np.any(e_f < 0.0, axis=1) if n else np.zeros(0, dtype=bool)
     return np.maximum(e_f, 0.0), low
+
+
+def _emitting(emitters: EmitterDisks) -> tuple:
+    """``_gather``'s disk arguments for ``emitters`` (owned by no receiver)."""
+    return emitters.centres, emitters.normals, emitters.areas, emitters.radiance, np.full(emitters.size, -1, dtype=np.int64)
 
 
 def _merged(disks: EmitterDisks, count: int) -> EmitterDisks:
@@ -348,7 +462,7 @@ def _sides(elements: DiskElements):
 
 def _aimed(
     elements: DiskElements, emitters: EmitterDisks, patches: EmitterDisks, passes: int, progress, emitting=None,
-    faces_occlude: bool = True,
+    faces_occlude: bool = True, trees: _Trees | None = None,
 ) -> tuple:  # fmt: skip
     """Irradiance at the vertices (front side) from ``emitters``, shadowed by the vertex
     disks in ``passes`` passes aimed at the lights; and the vertices taken below zero.
@@ -362,7 +476,8 @@ def _aimed(
     emitting triangles' light (the last group): they lie in it. ``faces_occlude``: the
     occluders are the triangles (centroid, normal, area; a side's light the mean of its
     corners'), which tile the surface, rather than the vertex disks, whose circles
-    leave gaps and overhang edges (direct light on the box: 4.6% against 10.6%)."""
+    leave gaps and overhang edges (direct light on the box: 4.6% against 10.6%). With
+    ``trees`` each receiver walks the occluders' tree (``lighttree.aimed_shadow_tree``)."""
     idx = elements.emitter_index
     n, n_groups = elements.n_vertices, emitters.n_groups
     front_p, front_n, back_p, back_n = _sides(elements)
@@ -374,13 +489,15 @@ def _aimed(
         first[0, :, g] = _gather(front_p, front_n, *src)
         first[1, :, g] = _gather(back_p, back_n, *src)
     progress.advance(1)
-    if faces_occlude:
+    if trees is not None:
+        faces, occ, occ_own = trees.faces, None, trees.occ_own
+    elif faces_occlude:
         faces, occ = _face_occluders(elements)
         occ_own = np.full(len(faces), -1, dtype=np.int64)
     else:
         occ = np.column_stack([elements.positions[idx], elements.normals[idx], elements.areas[idx]])
         occ_own = idx
-    occ = np.ascontiguousarray(occ)
+    occ = None if occ is None else np.ascontiguousarray(occ)
     rows = np.column_stack([patches.centres, patches.normals, patches.areas, patches.radiance, patches.group])
     rows = np.ascontiguousarray(rows, dtype=np.float64)
     lit = first
@@ -399,7 +516,14 @@ def _aimed(
         lit = np.empty_like(first)
         last = _ == passes - 1  # the last pass lights the front sides alone: they are the output
         for side, (pts, nrm) in enumerate(((front_p, front_n),) if last else ((front_p, front_n), (back_p, back_n))):
-            _kls.aimed_shadow(pts, nrm, occ, occ_own, vis, rows, blocked)
+            if trees is not None and not last and trees.reps.shape[0] < n:
+                part = np.empty((trees.reps.shape[0], n_groups))
+                aimed_shadow_tree(pts[trees.reps], nrm[trees.reps], trees.occluders, occ_own, vis, rows, part, *trees.aimed)
+                blocked[:] = part[trees.rep_index]
+            elif trees is not None:
+                aimed_shadow_tree(pts, nrm, trees.occluders, occ_own, vis, rows, blocked, *trees.aimed)
+            else:
+                _kls.aimed_shadow(pts, nrm, occ, occ_own, vis, rows, blocked)
             lit[side] = first[side] * (1.0 - blocked)[:, :, None]
         progress.advance(1)
     low = np.any(lit[0] < 0.0, axis=(1, 2)) if n else np.zeros(0, dtype=bool)
