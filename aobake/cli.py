@@ -586,6 +586,7 @@ def bake(
     is multiplied by each occluder's: 1 - A = (1 - A_self) prod (1 - A_k). A USD
     input baked to USD gives an overlay: the source with primvars:ao added, by layering.
     """
+    from . import precompile
     from .pipeline import bake_file
     from .progress import make_progress
 
@@ -593,7 +594,8 @@ def bake(
         method, color, channel, weld, up, meters_per_unit, fields, time_code, overlay, given, ground
     )
     options = settings.pop("options")
-    with compile_notice(quiet):
+    # a cold cache: the largest kernel compiles in a helper process, on another core
+    with compile_notice(quiet), precompile.enabled():
         report = bake_file(mesh, output, progress=make_progress(quiet), **settings, **options)
     if not quiet:
         click.echo(report.summary(), err=True)

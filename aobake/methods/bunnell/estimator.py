@@ -110,6 +110,11 @@ def estimate(
     O(n^2), no tree: the hierarchy's reference)."""
     scheme = Scheme() if scheme is None else scheme
     check_blend(scheme.combine, options.passes)  # before any work
+    if not exact and options.passes == 1 and options.measure == "cosine":
+        from ... import precompile
+
+        # the tree pass's kernel, when not cached, compiles in a helper meanwhile (the CLI)
+        precompile.start("tree-pass")
     elements = build_elements(surface)
     given, tree = tree, None
     if not exact and elements.n_emitters > 0:
