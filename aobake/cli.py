@@ -761,10 +761,12 @@ def field_command(occluder, output, quiet, **options):
     Use it with `aobake bake RECEIVER -o OUT --field FIELD.npz[@tx,ty,tz[,rx,ry,rz]]`:
     the occluder's contact shadows on any receiver, at the cost of a table lookup.
     """
+    from . import precompile
     from .pipeline import fit_field_file
     from .progress import make_progress
 
-    with compile_notice(quiet):
+    # a cold cache: the texel fit's kernel compiles in a helper process, on another core
+    with compile_notice(quiet), precompile.enabled():
         report = fit_field_file(occluder, output, progress=make_progress(quiet), **options)
     if not quiet:
         click.echo(report.summary(), err=True)

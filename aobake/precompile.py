@@ -30,7 +30,10 @@ import sys
 import time
 
 #: name -> "module:function" returning (numba dispatcher, example arguments)
-TARGETS = {"tree-pass": "aobake.methods.bunnell.passes:first_pass_kernel"}
+TARGETS = {
+    "tree-pass": "aobake.methods.bunnell.passes:first_pass_kernel",
+    "field-fit": "aobake.methods.fields.fit:fit_kernel",
+}
 
 #: Seconds the command waits for a helper still running before compiling itself (a
 #: helper compiles the tree pass in ~20 s on an idle 2-core machine, ~150 s under load).

@@ -73,30 +73,42 @@ def test_helper_ends_when_the_command_does(helpers):
     assert b.returncode is not None and not helpers._helpers
 
 
-def test_tree_pass_example_has_the_types_a_bake_passes(monkeypatch):
-    """The helper compiles the tree pass for first_pass_kernel's argument types: those of
-    a default bake's call (else the bake would compile it again)."""
-    from aobake.kernels import treepass
-    from aobake.mesh import surface_from_arrays
-    from aobake.methods import run
-    from aobake.methods.bunnell.passes import first_pass_kernel
-    from aobake.pipeline import warm_up_scene
+class _Seen(Exception):
+    pass
 
+
+def _first_call_types(monkeypatch, module, name, work) -> tuple:
+    """numba's types of the first call of ``module.name`` in ``work()`` (not run)."""
     calls = []
-
-    class Seen(Exception):
-        pass
 
     def record(*args):
         calls.append(tuple(numba.typeof(a) for a in args))
-        raise Seen
+        raise _Seen
 
-    kernel, example = first_pass_kernel()
-    assert kernel is treepass.thin_pass_unbinned
-    monkeypatch.setattr(treepass, "thin_pass_unbinned", record)
-    with pytest.raises(Seen):
-        run("bunnell", surface_from_arrays(*warm_up_scene()), {}, None)
-    assert calls[0] == tuple(numba.typeof(a) for a in example)
+    monkeypatch.setattr(module, name, record)
+    with pytest.raises(_Seen):
+        work()
+    monkeypatch.undo()
+    return calls[0]
+
+
+def test_examples_have_the_types_the_commands_pass(monkeypatch):
+    """Each helper compiles its kernel for its target's example arguments: the types of
+    the command's call (else the command would compile the kernel again)."""
+    from aobake.kernels import field_fit, treepass
+    from aobake.mesh import surface_from_arrays
+    from aobake.methods import run
+    from aobake.methods.fields import fit_field
+    from aobake.pipeline import warm_up_scene
+
+    scene = surface_from_arrays(*warm_up_scene())
+    for target, module, name, work in [
+        ("tree-pass", treepass, "thin_pass_unbinned", lambda: run("bunnell", scene, {}, None)),
+        ("field-fit", field_fit, "fit_texels", lambda: fit_field(scene, resolution=4, radial_samples=8)),
+    ]:
+        kernel, sig = precompile.kernel_signature(target)
+        assert kernel is getattr(module, name)
+        assert _first_call_types(monkeypatch, module, name, work) == sig, target
 
 
 def test_command_loads_what_the_helper_compiled(tmp_path):
