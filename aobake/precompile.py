@@ -85,11 +85,13 @@ def is_cached(target: str) -> bool | None:
     return key in index
 
 
-def start(target: str, *, command: list[str] | None = None) -> bool:
+def start(target: str, *, threads: int | None = None, command: list[str] | None = None) -> bool:
     """Start a helper compiling ``target`` unless helpers are off, one is running, this
-    machine has one core, or the kernel is cached (or the cache cannot be read). True
-    when one was started. ``command``: the helper's command line (tests)."""
-    if not _enabled or target in _helpers or (os.cpu_count() or 1) < 2:
+    machine has one core or the command may use one (``threads``, as ``--threads``), or
+    the kernel is cached (or the cache cannot be read). True when one was started.
+    ``command``: the helper's command line (tests)."""
+    cores = os.cpu_count() or 1
+    if not _enabled or target in _helpers or min(cores, cores if threads is None else threads) < 2:
         return False
     if command is None and is_cached(target) is not False:
         return False

@@ -32,7 +32,8 @@ def _python(code: str) -> list[str]:
     return [sys.executable, "-c", code]
 
 
-def test_off_by_default_and_when_disabled(helpers):
+def test_none_when_disabled_or_on_one_thread(helpers):
+    assert not helpers.start("stub", threads=1, command=_python("pass"))  # --threads 1: one core
     helpers.enable(False)
     assert not helpers.start("stub", command=_python("pass"))
     assert "stub" not in helpers._helpers

@@ -114,7 +114,7 @@ def estimate(
         from ... import precompile
 
         # the tree pass's kernel, when not cached, compiles in a helper meanwhile (the CLI)
-        precompile.start("tree-pass")
+        precompile.start("tree-pass", threads=options.threads)
     elements = build_elements(surface)
     given, tree = tree, None
     if not exact and elements.n_emitters > 0:

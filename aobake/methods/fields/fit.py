@@ -145,7 +145,7 @@ def fit_field(
     opts = build(FieldOptions, options, **changes)
     from ... import precompile
 
-    precompile.start("field-fit")  # a cold cache: the fit's kernel compiles in a helper meanwhile (the CLI)
+    precompile.start("field-fit", threads=opts.threads)  # a cold cache: the fit's kernel compiles in a helper meanwhile (the CLI)
     sampler, model, res = opts.sampler, opts.model, opts.resolution
     radial_samples, prefilter = opts.radial_samples, opts.prefilter
     progress = progress or NullProgress()
