@@ -64,7 +64,9 @@ def test_a_slow_helper_is_killed_after_the_limit_and_counted_as_compiling(helper
 def test_helper_ends_when_the_command_does(helpers):
     """The helper reads its stdin, the command's pipe: closed (the command ended, even by
     SIGKILL), it exits at once; stop_all (atexit) kills and reaps the rest."""
-    code = "from aobake.precompile import _watch_parent; _watch_parent(); import time; time.sleep(60)"
+    code = (
+        "from aobake.precompile import _watch_parent; _watch_parent(); import time; time.sleep(60)"
+    )
     assert helpers.start("a", command=_python(code))
     assert helpers.start("b", command=_python(code))
     a, b = helpers._helpers["a"], helpers._helpers["b"]
@@ -105,7 +107,12 @@ def test_examples_have_the_types_the_commands_pass(monkeypatch):
     scene = surface_from_arrays(*warm_up_scene())
     for target, module, name, work in [
         ("tree-pass", treepass, "thin_pass_unbinned", lambda: run("bunnell", scene, {}, None)),
-        ("field-fit", field_fit, "fit_texels", lambda: fit_field(scene, resolution=4, radial_samples=8)),
+        (
+            "field-fit",
+            field_fit,
+            "fit_texels",
+            lambda: fit_field(scene, resolution=4, radial_samples=8),
+        ),
     ]:
         kernel, sig = precompile.kernel_signature(target)
         assert kernel is getattr(module, name)
@@ -116,7 +123,8 @@ def test_command_loads_what_the_helper_compiled(tmp_path):
     """End to end on a small kernel, in a fresh process and an empty cache: the helper
     compiles it, the command waits (one compile event, its wait), then loads it from the
     cache instead of compiling (numba's cache hits)."""
-    (tmp_path / "small_target.py").write_text(textwrap.dedent("""
+    (tmp_path / "small_target.py").write_text(
+        textwrap.dedent("""
         import numpy as np
 
         from aobake.kernels.polygon import vertex_areas
@@ -124,7 +132,8 @@ def test_command_loads_what_the_helper_compiled(tmp_path):
 
         def target():
             return vertex_areas, (np.zeros((3, 3)), np.zeros((1, 3), dtype=np.int64), np.zeros(3))
-    """))
+    """)
+    )
     script = textwrap.dedent("""
         import sys
         from aobake import precompile
@@ -144,6 +153,8 @@ def test_command_loads_what_the_helper_compiled(tmp_path):
     """)
     env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"),
                PYTHONPATH=os.pathsep.join([str(ROOT), str(tmp_path)]))  # fmt: skip
-    out = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=300)
+    out = subprocess.run(
+        [sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=300
+    )
     assert out.returncode == 0, out.stderr
     assert out.stdout.split("\n")[:2] == [COMPILING, "False True 1 True 1"]
