@@ -586,6 +586,7 @@ def bake(
     is multiplied by each occluder's: 1 - A = (1 - A_self) prod (1 - A_k). A USD
     input baked to USD gives an overlay: the source with primvars:ao added, by layering.
     """
+    from . import precompile
     from .pipeline import bake_file
     from .progress import make_progress
 
@@ -593,7 +594,8 @@ def bake(
         method, color, channel, weld, up, meters_per_unit, fields, time_code, overlay, given, ground
     )
     options = settings.pop("options")
-    with compile_notice(quiet):
+    # a cold cache: the largest kernel compiles in a helper process, on another core
+    with compile_notice(quiet), precompile.enabled():
         report = bake_file(mesh, output, progress=make_progress(quiet), **settings, **options)
     if not quiet:
         click.echo(report.summary(), err=True)
@@ -759,10 +761,12 @@ def field_command(occluder, output, quiet, **options):
     Use it with `aobake bake RECEIVER -o OUT --field FIELD.npz[@tx,ty,tz[,rx,ry,rz]]`:
     the occluder's contact shadows on any receiver, at the cost of a table lookup.
     """
+    from . import precompile
     from .pipeline import fit_field_file
     from .progress import make_progress
 
-    with compile_notice(quiet):
+    # a cold cache: the texel fit's kernel compiles in a helper process, on another core
+    with compile_notice(quiet), precompile.enabled():
         report = fit_field_file(occluder, output, progress=make_progress(quiet), **options)
     if not quiet:
         click.echo(report.summary(), err=True)

@@ -113,6 +113,11 @@ def estimate(
     O(n^2), no tree: the hierarchy's reference)."""
     scheme = Scheme() if scheme is None else scheme
     check_blend(scheme.combine, options.passes)  # before any work
+    if not exact and options.passes == 1 and options.measure == "cosine":
+        from ... import precompile
+
+        # the tree pass's kernel, when not cached, compiles in a helper meanwhile (the CLI)
+        precompile.start("tree-pass", threads=options.threads)
     if options.threads is None and surface.n_vertices <= SERIAL_VERTICES:
         options = dataclasses.replace(options, threads=1)  # a small mesh: see SERIAL_VERTICES
     with numba_threads(options.threads):

@@ -18,6 +18,7 @@ import math
 
 import numpy as np
 
+from ... import precompile
 from ..._types import FloatArray, IndexArray
 from ...checks import check_result, numba_threads
 from ...constants import MEASURE_CODES, PASS_GATE_WIDTH, PASS_RADII
@@ -234,6 +235,7 @@ class _Pass:
         import numba
 
         threads = numba.get_num_threads()
+        precompile.wait("tree-pass")  # a cold cache: a helper may be compiling the kernel
         for b0 in range(0, n_buckets, CHUNK_BUCKETS):
             b1 = min(b0 + CHUNK_BUCKETS, n_buckets)
             _tp.hierarchy_pass(
@@ -263,6 +265,30 @@ def scratch(shape: tuple, dtype) -> np.ndarray:
     count = math.prod(shape)
     buffer = mmap.mmap(-1, max(count * dtype.itemsize, 1))
     return np.frombuffer(buffer, dtype=dtype, count=count).reshape(shape)
+
+
+def first_pass_kernel():
+    """The tree pass's kernel in a default bake (one pass, cosine measure: the unbinned
+    thin loop) and arguments of the types :meth:`_Pass.sums` passes it, for
+    :mod:`aobake.precompile` to compile it in a helper process on a cold cache."""
+    f32, i64 = np.float32, np.int64
+
+    def z(*shape, dtype=np.float64):
+        return np.zeros(shape, dtype=dtype)
+
+    tree = _s.TreeArrays(z(1, dtype=i64), z(1, dtype=i64), z(1, dtype=i64), z(1, _h.NODE_COLS, dtype=f32),
+                         z(1, 1, _h.MOMENT_COLS, dtype=f32))  # fmt: skip
+    emitters = _s.Emitters(z(1, _h.EMITTER_COLS, dtype=f32), z(1, dtype=i64), z(1, 1, dtype=f32), z(1, 3, dtype=f32))
+    receivers = _s.Receivers(z(1, 3), z(1, 3), z(1), z(1, dtype=np.uint8))
+    near_field = _s.NearField(z(1, 3), z(1), z(2, dtype=i64), z(0, 2, dtype=np.int32), z(1), z(0, 2, _k.N_BINS), 0)
+    buckets = _s.Buckets(z(1, dtype=i64), z(2, dtype=i64), z(1, _tw.BOUND_COLS), z(1, _tw.NEAR_ROWS, 1, dtype=f32),
+                         z(1, 2, 1, dtype=i64), z(1, _tw.FAR_ROWS, 1, dtype=f32))  # fmt: skip
+    options = _s.PassOptions(
+        measure=MEASURE_CODES["cosine"], max_distance=math.inf, near=1.0, binned=False, bin_r2=z(_k.N_BINS),
+        weight_r2=z(_k.N_BINS), leveled=False, gate=0.0, directional=True,
+    )  # fmt: skip
+    args = (tree, emitters, receivers, near_field, buckets, _s.Span(0, 0, 1), options, z(1, 2, 1), z(1, 4), _no_fill(1))
+    return _tp.thin_pass_unbinned, args
 
 
 def _no_fill(n: int) -> _s.Fill:

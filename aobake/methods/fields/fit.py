@@ -61,6 +61,13 @@ _RASTER_CHUNK = 2048
 _FIT_TASK = 32
 
 
+def fit_kernel():
+    """The texel fit's kernel and arguments of the types :func:`fit_field` passes it, for
+    :mod:`aobake.precompile` to compile it in a helper process on a cold cache."""
+    z = np.zeros
+    return _k.fit_texels, (z((1, 2, 2)), z((1, 2, 4)), z((1, 3)), z(1), 2.0, z(4), z((1, _model.N_PARAMS)), z((1, 2)))
+
+
 def occluder_hash(positions: FloatArray, faces) -> str:
     """SHA-256 (hex) of the occluder's float64 positions and int64 faces."""
     digest = hashlib.sha256()
@@ -136,6 +143,9 @@ def fit_field(
     """
     t0 = time.perf_counter()
     opts = build(FieldOptions, options, **changes)
+    from ... import precompile
+
+    precompile.start("field-fit", threads=opts.threads)  # a cold cache: the fit's kernel compiles in a helper meanwhile (the CLI)
     sampler, model, res = opts.sampler, opts.model, opts.resolution
     radial_samples, prefilter = opts.radial_samples, opts.prefilter
     progress = progress or NullProgress()
@@ -217,6 +227,7 @@ def fit_field(
             return e - s
 
         # each texel is fitted on its own: the result does not depend on the threads
+        precompile.wait("field-fit")
         trace_chunks(split(np.arange(n_tex), _FIT_TASK), fit, threads=numba.get_num_threads(),
                      progress=NullProgress())
     if not (np.isfinite(params).all() and np.isfinite(resid).all()):
