@@ -188,6 +188,67 @@ def test_receiver_buckets_cover_every_vertex_once():
     assert sizes.min() >= 1 and sizes.max() <= 4
 
 
+def _two_cluster_buckets():
+    """Bucket 0: 20 receivers on a patch at the origin and 12 on one 5 units above, mixed
+    (a leaf straddling a gap); bucket 1: a compact 4 x 4 patch beside them; disks of area
+    h^2 on a grid of step h."""
+    h = 0.01
+    grid = lambda nx, ny, x0, z: np.array(  # noqa: E731
+        [[x0 + i * h, j * h, z] for i in range(nx) for j in range(ny)]
+    )
+    points = np.vstack([grid(4, 5, 0.0, 0.0), grid(4, 3, 0.0, 5.0), grid(4, 4, 1.0, 0.0)])
+    order = np.r_[np.random.default_rng(0).permutation(32), np.arange(32, 48)]
+    return points, np.full(points.shape[0], h * h), order, np.array([0, 32, 48])
+
+
+def test_split_spread_buckets_separates_two_clusters():
+    points, areas, order, start = _two_cluster_buckets()
+    normals = np.tile([0.0, 0.0, 1.0], (points.shape[0], 1))
+    bounds = np.zeros((2, KTW.BOUND_COLS))
+    KTW.bucket_bounds(points, normals, np.zeros(48), order, start, bounds)
+    new_order, new_start = P.split_spread_buckets(points, areas, order, start,
+                                                  bounds[:, KTW.B_RADIUS], 8.0)
+    pieces = [new_order[a:b] for a, b in zip(new_start[:-1], new_start[1:], strict=True)]
+    # the compact bucket stays whole, in its place; the wide one is cut at the gap
+    np.testing.assert_array_equal(pieces[-1], order[32:])
+    assert len(pieces) >= 3
+    np.testing.assert_array_equal(np.sort(new_order[:32]), np.sort(order[:32]))
+    for piece in pieces[:-1]:
+        z = points[piece, 2]
+        assert np.all(z == z[0])  # one cluster each
+        # compact now, and the leaf's order kept within the piece
+        r2 = np.max(np.sum((points[piece] - points[piece].mean(axis=0)) ** 2, axis=1))
+        assert np.pi * r2 <= 8.0 * areas[piece].sum() or piece.shape[0] == 1
+        rank = {v: r for r, v in enumerate(order[:32])}
+        assert [rank[v] for v in piece] == sorted(rank[v] for v in piece)
+    # a spread no bucket exceeds changes nothing
+    same = P.split_spread_buckets(points, areas, order, start, bounds[:, KTW.B_RADIUS], 1e9)
+    np.testing.assert_array_equal(same[0], order)
+    np.testing.assert_array_equal(same[1], start)
+
+
+def test_tree_pass_with_split_buckets_matches_the_exact_sum():
+    """Buckets split hard (``bucket_spread=1``: nearly every leaf) still walk to the exact
+    sum when every cluster opens, stay within the tree's error at the defaults, and give
+    the same bits for any thread count."""
+    s = sphere_on_plane()
+    e = B.build_elements(s)
+    tree = B.build_tree(e)
+    whole = P.receiver_buckets(e, tree, spread=np.inf)[1].shape[0]
+    assert P.receiver_buckets(e, tree, spread=1.0)[1].shape[0] > 2 * whole
+    exact = passes_of(e, None)[0]
+    huge = passes_of(e, tree, theta=np.inf, bucket_spread=1.0)[0]
+    np.testing.assert_allclose(huge, exact, rtol=0, atol=2e-6)
+    split = passes_of(e, tree, bucket_spread=1.0)
+    unsplit = passes_of(e, tree, bucket_spread=np.inf)
+    err = lambda a: np.sqrt(np.mean((a[0] - exact) ** 2))  # noqa: E731
+    assert err(split) < 5e-3 and err(unsplit) < 5e-3
+    assert not np.array_equal(split, unsplit)
+    np.testing.assert_array_equal(
+        split, B.occlusion_passes(e, tree, *B.settings(bucket_spread=1.0, threads=1))
+    )
+
+
 @settings(max_examples=60, deadline=None)
 @given(
     seed=st.integers(0, 2**32 - 1),
