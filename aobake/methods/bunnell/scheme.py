@@ -20,7 +20,7 @@ DEFAULT_LEAF_SIZE = 32
 DEFAULT_PASS_REACH = 0.5
 # The default of Scheme.bucket_spread (see there; docs/bunnell.md, "Receiver buckets split
 # at gaps").
-DEFAULT_BUCKET_SPREAD = 8.0
+DEFAULT_BUCKET_SPREAD = 32.0
 
 
 @dataclass(frozen=True)
