@@ -227,6 +227,45 @@ def test_split_spread_buckets_separates_two_clusters():
     np.testing.assert_array_equal(same[1], start)
 
 
+def _halves(points, areas, members, spread):
+    """The rule of split_spread_buckets for one bucket, one piece at a time."""
+    p = points[members]
+    r2 = np.max(np.sum((p - p.mean(axis=0)) ** 2, axis=1))
+    axis = np.argmax(p.max(axis=0) - p.min(axis=0))
+    low = p[:, axis] <= 0.5 * (p[:, axis].min() + p[:, axis].max())
+    if len(members) == 1 or np.pi * r2 <= spread * areas[members].sum() or low.all():
+        return [members]
+    return _halves(points, areas, members[low], spread) + _halves(points, areas, members[~low], spread)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_split_spread_buckets_is_the_recursive_rule(seed):
+    """Scattered clusters of random sizes (some coincident points): the level-by-level
+    numpy split gives the pieces, in the order, of halving each bucket recursively."""
+    rng = np.random.default_rng(seed)
+    n = 600
+    points = rng.uniform(-1, 1, (n // 3, 1, 3)) + rng.choice([1e-3, 0.05], (n // 3, 1, 1)) * (
+        rng.normal(size=(n // 3, 3, 3)))
+    points = points.reshape(n, 3)
+    points[5:9] = points[4]
+    areas = rng.uniform(1e-6, 1e-4, n)
+    order = rng.permutation(n)
+    start = np.unique(np.r_[0, rng.choice(np.arange(1, n), 30, replace=False), n])
+    centre = np.add.reduceat(points[order], start[:-1]) / np.diff(start)[:, None]
+    radii = np.array([np.sqrt(np.max(np.sum((points[order[a:b]] - c) ** 2, axis=1)))
+                      for a, b, c in zip(start[:-1], start[1:], centre, strict=True)])
+    for spread in (1.0, 8.0, 32.0):
+        got_order, got_start = P.split_spread_buckets(points, areas, order, start, radii, spread)
+        pieces = []
+        for a, b, r in zip(start[:-1], start[1:], radii, strict=True):
+            m = order[a:b]
+            wide = np.pi * r**2 > spread * areas[m].sum()
+            pieces += _halves(points, areas, m, spread) if wide else [m]
+        np.testing.assert_array_equal(got_order, np.concatenate(pieces))
+        np.testing.assert_array_equal(got_start, np.cumsum([0] + [len(q) for q in pieces]))
+    assert len(pieces) > len(start) - 1  # spread 32 still split some
+
+
 def test_tree_pass_with_split_buckets_matches_the_exact_sum():
     """Buckets split hard (``bucket_spread=1``: nearly every leaf) still walk to the exact
     sum when every cluster opens, stay within the tree's error at the defaults, and give
