@@ -17,7 +17,9 @@ the split timing of one pass reproduces ``occlusion_passes``):
 5. a second ~700k-vertex scene (the bunny, loop-subdivided, on a floor): the same
    contenders, round-robin;
 6. vertex order: one pass on both big scenes, as generated and with the vertices
-   shuffled.
+   shuffled;
+7. receiver buckets split at gaps (``Scheme.bucket_spread``): one pass on both big
+   scenes with every leaf whole and at spreads 32 and 8, round-robin, with its RMSE.
 
 References are cached in bench/results/ (Embree 1024 rays on 700k vertices takes minutes).
 
@@ -367,11 +369,43 @@ def section_vertex_order(n_vertices, repeats):
     ))
 
 
+def section_split(n_vertices, repeats):
+    """One pass with the receiver buckets split at gaps or not (docs/bunnell.md, "Receiver
+    buckets split at gaps"): setup + pass times round-robin, and the RMSE of the whole
+    bake at each spread."""
+    print(f"\n## 7. Receiver buckets split at gaps: one pass at the defaults, round-robin "
+          f"(best of {repeats}; RMSE against Embree {REF_RAYS} rays)\n")
+    rows = []
+    for key, make in (("spheres_on_ground", common.spheres_on_ground),
+                      ("bunny_on_ground", common.bunny_on_ground)):
+        s, _ = make(n_vertices)
+        ref = reference(key, s)
+        elements = B.build_elements(s)
+        tree = B.build_tree(elements)
+        ones = np.ones(elements.n_vertices)
+        jobs = {spread: P._Pass(elements, tree, DEFAULTS.theta, DEFAULTS.near,
+                                MEASURE_CODES["cosine"], np.inf, spread=spread)
+                for spread in (np.inf, 32.0, 8.0)}
+        times = common.interleaved(
+            {k: lambda job=job, w=ones: job.sums(w, NullProgress(), w) for k, job in jobs.items()},
+            repeats,
+        )
+        for spread, job in jobs.items():
+            rmse, _, bias = scores(B.variant_ao(s, bucket_spread=spread), ref, s)
+            t = times[spread]
+            rows.append([f"{key} ({elements.n_vertices})", f"{spread:g}",
+                         str(job.bucket_start.shape[0] - 1), f"{t.seconds:.2f}", f"{t.cpu:.2f}",
+                         f"{rmse:.5f}", f"{bias:+.5f}"])
+    print(common.markdown_table(
+        ["scene", "bucket_spread", "buckets", "pass s", "pass CPU s", "RMSE", "bias"], rows
+    ))
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="100k instead of 700k vertices")
     parser.add_argument("--threads", type=int, default=None, help="numba threads (default: all)")
-    parser.add_argument("--sections", default="123456", help="which sections to run, e.g. 13")
+    parser.add_argument("--sections", default="1234567", help="which sections to run, e.g. 13")
     parser.add_argument("--repeats", type=int, default=2, help="best of this many runs")
     parser.add_argument("--check", type=int, default=2000, help="receivers checked against the exact sum")
     args = parser.parse_args()
@@ -396,6 +430,8 @@ def main():
         section_bunny(100_000 if args.quick else 700_000)
     if "6" in args.sections:
         section_vertex_order(100_000 if args.quick else 700_000, args.repeats)
+    if "7" in args.sections:
+        section_split(100_000 if args.quick else 700_000, args.repeats)
 
 
 if __name__ == "__main__":

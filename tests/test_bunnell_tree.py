@@ -188,6 +188,106 @@ def test_receiver_buckets_cover_every_vertex_once():
     assert sizes.min() >= 1 and sizes.max() <= 4
 
 
+def _two_cluster_buckets():
+    """Bucket 0: 20 receivers on a patch at the origin and 12 on one 5 units above, mixed
+    (a leaf straddling a gap); bucket 1: a compact 4 x 4 patch beside them; disks of area
+    h^2 on a grid of step h."""
+    h = 0.01
+    grid = lambda nx, ny, x0, z: np.array(  # noqa: E731
+        [[x0 + i * h, j * h, z] for i in range(nx) for j in range(ny)]
+    )
+    points = np.vstack([grid(4, 5, 0.0, 0.0), grid(4, 3, 0.0, 5.0), grid(4, 4, 1.0, 0.0)])
+    order = np.r_[np.random.default_rng(0).permutation(32), np.arange(32, 48)]
+    return points, np.full(points.shape[0], h * h), order, np.array([0, 32, 48])
+
+
+def test_split_spread_buckets_separates_two_clusters():
+    points, areas, order, start = _two_cluster_buckets()
+    normals = np.tile([0.0, 0.0, 1.0], (points.shape[0], 1))
+    bounds = np.zeros((2, KTW.BOUND_COLS))
+    KTW.bucket_bounds(points, normals, np.zeros(48), order, start, bounds)
+    new_order, new_start = P.split_spread_buckets(points, areas, order, start,
+                                                  bounds[:, KTW.B_RADIUS], 8.0)
+    pieces = [new_order[a:b] for a, b in zip(new_start[:-1], new_start[1:], strict=True)]
+    # the compact bucket stays whole, in its place; the wide one is cut at the gap
+    np.testing.assert_array_equal(pieces[-1], order[32:])
+    assert len(pieces) >= 3
+    np.testing.assert_array_equal(np.sort(new_order[:32]), np.sort(order[:32]))
+    for piece in pieces[:-1]:
+        z = points[piece, 2]
+        assert np.all(z == z[0])  # one cluster each
+        # compact now, and the leaf's order kept within the piece
+        r2 = np.max(np.sum((points[piece] - points[piece].mean(axis=0)) ** 2, axis=1))
+        assert np.pi * r2 <= 8.0 * areas[piece].sum() or piece.shape[0] == 1
+        rank = {v: r for r, v in enumerate(order[:32])}
+        assert [rank[v] for v in piece] == sorted(rank[v] for v in piece)
+    # a spread no bucket exceeds changes nothing
+    same = P.split_spread_buckets(points, areas, order, start, bounds[:, KTW.B_RADIUS], 1e9)
+    np.testing.assert_array_equal(same[0], order)
+    np.testing.assert_array_equal(same[1], start)
+
+
+def _halves(points, areas, members, spread):
+    """The rule of split_spread_buckets for one bucket, one piece at a time."""
+    p = points[members]
+    r2 = np.max(np.sum((p - p.mean(axis=0)) ** 2, axis=1))
+    axis = np.argmax(p.max(axis=0) - p.min(axis=0))
+    low = p[:, axis] <= 0.5 * (p[:, axis].min() + p[:, axis].max())
+    if len(members) == 1 or np.pi * r2 <= spread * areas[members].sum() or low.all():
+        return [members]
+    return _halves(points, areas, members[low], spread) + _halves(points, areas, members[~low], spread)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_split_spread_buckets_is_the_recursive_rule(seed):
+    """Scattered clusters of random sizes (some coincident points): the level-by-level
+    numpy split gives the pieces, in the order, of halving each bucket recursively."""
+    rng = np.random.default_rng(seed)
+    n = 600
+    points = rng.uniform(-1, 1, (n // 3, 1, 3)) + rng.choice([1e-3, 0.05], (n // 3, 1, 1)) * (
+        rng.normal(size=(n // 3, 3, 3)))
+    points = points.reshape(n, 3)
+    points[5:9] = points[4]
+    areas = rng.uniform(1e-6, 1e-4, n)
+    order = rng.permutation(n)
+    start = np.unique(np.r_[0, rng.choice(np.arange(1, n), 30, replace=False), n])
+    centre = np.add.reduceat(points[order], start[:-1]) / np.diff(start)[:, None]
+    radii = np.array([np.sqrt(np.max(np.sum((points[order[a:b]] - c) ** 2, axis=1)))
+                      for a, b, c in zip(start[:-1], start[1:], centre, strict=True)])
+    for spread in (1.0, 8.0, 32.0):
+        got_order, got_start = P.split_spread_buckets(points, areas, order, start, radii, spread)
+        pieces = []
+        for a, b, r in zip(start[:-1], start[1:], radii, strict=True):
+            m = order[a:b]
+            wide = np.pi * r**2 > spread * areas[m].sum()
+            pieces += _halves(points, areas, m, spread) if wide else [m]
+        np.testing.assert_array_equal(got_order, np.concatenate(pieces))
+        np.testing.assert_array_equal(got_start, np.cumsum([0] + [len(q) for q in pieces]))
+    assert len(pieces) > len(start) - 1  # spread 32 still split some
+
+
+def test_tree_pass_with_split_buckets_matches_the_exact_sum():
+    """Buckets split hard (``bucket_spread=1``: nearly every leaf) still walk to the exact
+    sum when every cluster opens, stay within the tree's error at the defaults, and give
+    the same bits for any thread count."""
+    s = sphere_on_plane()
+    e = B.build_elements(s)
+    tree = B.build_tree(e)
+    whole = P.receiver_buckets(e, tree, spread=np.inf)[1].shape[0]
+    assert P.receiver_buckets(e, tree, spread=1.0)[1].shape[0] > 2 * whole
+    exact = passes_of(e, None)[0]
+    huge = passes_of(e, tree, theta=np.inf, bucket_spread=1.0)[0]
+    np.testing.assert_allclose(huge, exact, rtol=0, atol=2e-6)
+    split = passes_of(e, tree, bucket_spread=1.0)
+    unsplit = passes_of(e, tree, bucket_spread=np.inf)
+    err = lambda a: np.sqrt(np.mean((a[0] - exact) ** 2))  # noqa: E731
+    assert err(split) < 5e-3 and err(unsplit) < 5e-3
+    assert not np.array_equal(split, unsplit)
+    np.testing.assert_array_equal(
+        split, B.occlusion_passes(e, tree, *B.settings(bucket_spread=1.0, threads=1))
+    )
+
+
 @settings(max_examples=60, deadline=None)
 @given(
     seed=st.integers(0, 2**32 - 1),

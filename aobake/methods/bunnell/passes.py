@@ -31,7 +31,13 @@ from ...kernels import treewalk as _tw
 from ...progress import NullProgress, Progress
 from .elements import DiskElements
 from .options import BunnellOptions
-from .scheme import DEFAULT_LEAF_SIZE, DEFAULT_PASS_REACH, Scheme, combine_sides
+from .scheme import (
+    DEFAULT_BUCKET_SPREAD,
+    DEFAULT_LEAF_SIZE,
+    DEFAULT_PASS_REACH,
+    Scheme,
+    combine_sides,
+)
 from .tree import ClusterTree, node_coherence, pack_nodes, tree_keys
 from .tree import build_tree as _build_tree
 
@@ -67,7 +73,8 @@ def build_tree(elements: DiskElements, *, leaf_size: int = DEFAULT_LEAF_SIZE) ->
 class _Pass:
     """Kernel inputs of one (elements, tree, options) set, reused by every pass.
 
-    ``pass_reach``: weight levels for passes >= 2 (see :func:`occlusion_passes`).
+    ``pass_reach``: weight levels for passes >= 2 (see :func:`occlusion_passes`);
+    ``spread``: :func:`receiver_buckets`'.
     """
 
     def __init__(
@@ -82,6 +89,7 @@ class _Pass:
         pass_reach=DEFAULT_PASS_REACH,
         gate=PASS_GATE_WIDTH,
         directional=True,
+        spread=DEFAULT_BUCKET_SPREAD,
     ):
         self.elements = elements
         self.tree = tree
@@ -112,10 +120,8 @@ class _Pass:
         coherence = node_coherence(tree, elements.normals, elements.areas)
         self.nodes = pack_nodes(tree, theta=theta, near=near, coherence=coherence)
         self._levels(1)
-        recv_order, bucket_start = receiver_buckets(elements, tree)
-        bounds = np.zeros((bucket_start.shape[0] - 1, _tw.BOUND_COLS))
-        _tw.bucket_bounds(elements.points, elements.normals, self.receivers.inner, recv_order,
-                          bucket_start, bounds)
+        recv_order, bucket_start = receiver_buckets(elements, tree, spread=spread)
+        bounds = _bucket_bounds(elements, self.receivers.inner, recv_order, bucket_start)
         slots = numba.config.NUMBA_NUM_THREADS
         k, m = order.shape[0], tree.n_nodes
         self.bucket_start = bucket_start
@@ -343,12 +349,16 @@ def pass_representatives(elements: DiskElements, tree: ClusterTree) -> IndexArra
     return rep_of
 
 
-def receiver_buckets(elements: DiskElements, tree: ClusterTree) -> tuple[IndexArray, IndexArray]:
+def receiver_buckets(
+    elements: DiskElements, tree: ClusterTree, *, spread: float = DEFAULT_BUCKET_SPREAD
+) -> tuple[IndexArray, IndexArray]:
     """Receivers grouped into small, compact buckets that walk the tree together.
 
     The emitters' tree leaves are the first buckets (in tree order, so consecutive
     buckets are neighbours); the other vertices (no area or no normal) get a tree of
-    their own, whose leaves are the remaining buckets.
+    their own, whose leaves are the remaining buckets. A leaf whose receivers lie far
+    apart for their disks' area is split (``spread``: :func:`split_spread_buckets`; inf
+    keeps the leaves whole).
 
     Returns
     -------
@@ -366,7 +376,87 @@ def receiver_buckets(elements: DiskElements, tree: ClusterTree) -> tuple[IndexAr
         starts.append(start[rest_leaves] + tree.order.shape[0])
         order.append(rest[perm])
     bucket_start = np.append(np.concatenate(starts), elements.n_vertices).astype(np.int64)
-    return np.ascontiguousarray(np.concatenate(order), dtype=np.int64), bucket_start
+    order = np.ascontiguousarray(np.concatenate(order), dtype=np.int64)
+    if not math.isfinite(spread):
+        return order, bucket_start
+    radii = _bucket_bounds(elements, np.zeros(elements.n_vertices), order, bucket_start)[:, _tw.B_RADIUS]
+    return split_spread_buckets(elements.points, elements.areas, order, bucket_start, radii, spread)
+
+
+def _bucket_bounds(elements, inner, order, bucket_start) -> FloatArray:
+    """(nb, BOUND_COLS) ``treewalk.bucket_bounds`` of the buckets."""
+    bounds = np.zeros((bucket_start.shape[0] - 1, _tw.BOUND_COLS))
+    _tw.bucket_bounds(elements.points, elements.normals, inner, order, bucket_start, bounds)
+    return bounds
+
+
+def split_spread_buckets(
+    points: FloatArray, areas: FloatArray, order: IndexArray, bucket_start: IndexArray,
+    radii: FloatArray, spread: float,
+) -> tuple[IndexArray, IndexArray]:
+    """Buckets whose receivers lie far apart, split until they are compact.
+
+    A tree leaf can straddle a gap (its median split counts disks, it does not look at
+    space: a ball's underside with the floor below it), and a bucket walks the tree as one
+    sphere around all its receivers, so a wide one opens every node near any of them
+    for all of them (on a 721k scene 1% of the leaves held a quarter of the near-list
+    terms). A bucket of radius r whose cross-section ``pi r^2`` exceeds ``spread`` times
+    its disks' summed area (a compact patch: 1-3) is halved at the midpoint of its
+    receivers' longest extent, and the halves again, until each is compact or one
+    receiver; the pieces keep the leaf's place and order. Buckets without area (vertices
+    that do not cast) stay whole. Every piece of a level is cut at once, in numpy: 0.6 s
+    for 300k vertices of scattered small triangles, where every leaf splits.
+
+    Parameters
+    ----------
+    points : (n, 3) float64
+    areas : (n,) float64
+    order, bucket_start : as :func:`receiver_buckets` returns them
+    radii : (nb,) float64
+        Each bucket's bounding radius (``treewalk.bucket_bounds``).
+    spread : float >= 1
+
+    Returns
+    -------
+    order, bucket_start
+        The same receivers, the wide buckets split.
+    """
+    area = np.add.reduceat(areas[order], bucket_start[:-1])
+    wide = (area > 0.0) & (math.pi * radii**2 > spread * area)
+    if not wide.any():
+        return order, bucket_start
+    order = order.copy()
+    n = order.shape[0]
+    starts, active = bucket_start[:-1].copy(), wide
+    # level by level, every active piece at once (numpy): a piece is halved or kept
+    while active.any():
+        sizes = np.diff(np.append(starts, n))
+        pieces = np.flatnonzero(active)
+        count = sizes[pieces]
+        first = np.cumsum(count) - count  # each piece's first member among ``at``
+        piece = np.repeat(np.arange(pieces.shape[0]), count)
+        at = np.repeat(starts[pieces] - first, count) + np.arange(count.sum())
+        p = points[order[at]]
+        centre = np.add.reduceat(p, first, axis=0) / count[:, None]
+        r2 = np.maximum.reduceat(np.sum((p - centre[piece]) ** 2, axis=1), first)
+        lo, hi = np.minimum.reduceat(p, first, axis=0), np.maximum.reduceat(p, first, axis=0)
+        axis = np.argmax(hi - lo, axis=1)
+        rows = np.arange(pieces.shape[0])
+        cut = 0.5 * (lo[rows, axis] + hi[rows, axis])
+        low = p[np.arange(p.shape[0]), axis[piece]] <= cut[piece]
+        n_low = np.add.reduceat(low.astype(np.int64), first)
+        halve = (count > 1) & (math.pi * r2 > spread * np.add.reduceat(areas[order[at]], first))
+        halve &= n_low < count  # all on one side: every point coincides along the axis
+        # the halved pieces' members: low half first, each half in the piece's order
+        key = 2 * piece + np.where(halve[piece], ~low, False)
+        order[at] = order[at][np.argsort(key, kind="stable")]
+        active = active.copy()
+        active[pieces[~halve]] = False
+        starts = np.append(starts, starts[pieces[halve]] + n_low[halve])
+        active = np.append(active, np.ones(int(halve.sum()), dtype=bool))
+        by_start = np.argsort(starts, kind="stable")
+        starts, active = starts[by_start], active[by_start]
+    return np.ascontiguousarray(order), np.append(starts, n).astype(np.int64)
 
 
 def occlusion_passes(
@@ -441,7 +531,7 @@ def occlusion_passes(
     sides, damping = scheme.sides, scheme.damping
     with numba_threads(options.threads), np.errstate(under="ignore"):
         job = _Pass(elements, tree, options.theta, options.near, code, reach, None,
-                    scheme.pass_reach, scheme.gate, options.directional)
+                    scheme.pass_reach, scheme.gate, options.directional, scheme.bucket_spread)
         # later passes read pass 1's direction bins at the receivers they evaluate
         keepers = evaluated if share else np.arange(n)
         fill = scheme.pass_fill and options.directional and passes > 1

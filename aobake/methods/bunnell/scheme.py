@@ -18,6 +18,9 @@ from .options import BunnellOptions
 DEFAULT_LEAF_SIZE = 32
 # The default of Scheme.pass_reach (see there).
 DEFAULT_PASS_REACH = 0.5
+# The default of Scheme.bucket_spread (see there; docs/bunnell.md, "Receiver buckets split
+# at gaps").
+DEFAULT_BUCKET_SPREAD = 32.0
 
 
 @dataclass(frozen=True)
@@ -45,6 +48,10 @@ class Scheme:
         How the passes make the result (:func:`combine_passes`).
     leaf_size : int
         Maximum disks per tree leaf.
+    bucket_spread : float
+        A receiver bucket (a tree leaf) whose bounding sphere's cross-section exceeds this
+        many times its disks' area is split (``passes.split_spread_buckets``); inf keeps
+        every leaf whole.
     """
 
     sides: str = option("max", "front and back sums", kind=str, choices=("max", "front"))
@@ -59,6 +66,9 @@ class Scheme:
         "last", "how passes combine", kind=str, choices=("last", "bunnell", "hoberock")
     )
     leaf_size: int = option(DEFAULT_LEAF_SIZE, "disks per leaf", kind=int, low=1)
+    bucket_spread: float = option(
+        DEFAULT_BUCKET_SPREAD, "bucket spread", kind=float, low=1, finite=False
+    )
 
     def __post_init__(self):
         validate(self)
