@@ -175,9 +175,10 @@ def test_fast_sobol_point_is_the_looped_one():
 
 
 def test_branch_free_first_directions_are_the_warps():
-    # The paths' first directions are made by selects, not branches (so the loop
+    # The AO's and the paths' first directions are made by selects, not branches (so the loop
     # vectorises): the concentric map and the cosine warp of the Sobol point, bit for bit.
-    from aobake.kernels.lights import _first_direction, concentric_selects
+    from aobake.kernels.rays import sobol_cosine_direction
+    from aobake.kernels.warps import concentric_selects
 
     u = np.random.default_rng(5).integers(0, 1 << 32, (400, 2)) / 2**32
     special = [0.0, 0.25, 0.5, 0.75, 1 - 2**-32, 0.5 + 2**-32, 0.5 - 2**-32]
@@ -189,7 +190,7 @@ def test_branch_free_first_directions_are_the_warps():
     for s0, s1 in ((0, 0), (0x2545F491, 0x4F6CDD1D)):
         for i in [0, 1, 2, 3, 1023, 1 << 20, (1 << 32) - 1]:
             uv = rng.scrambled_sobol2_seeded(np.uint64(i), np.uint64(s0), np.uint64(s1))
-            assert _first_direction(i, np.uint64(s0), np.uint64(s1)) == warps.square_to_cosine_hemisphere(*uv)
+            assert sobol_cosine_direction(i, np.uint64(s0), np.uint64(s1)) == warps.square_to_cosine_hemisphere(*uv)
 
 
 def test_reverse_bits():
@@ -208,3 +209,28 @@ def test_sample_directions_follow_normals():
     assert (d[3, :, 2] > 0).any() and (d[3, :, 2] < 0).any()
     # chunking of sample indices does not change directions
     np.testing.assert_array_equal(d[:, 16:32], sample_directions(normals, 16, seed=2, start=16))
+
+
+@pytest.mark.parametrize("measure", ["cosine", "uniform"])
+@pytest.mark.parametrize("stratified", [True, False])
+def test_sample_directions_are_the_scalar_warps(measure, stratified):
+    # generate_rays makes a vertex's directions in a loop (vectorised for the default):
+    # each must be the scalar warp of its own point, turned into the normal's frame.
+    from aobake.kernels import rays as _k
+
+    normals = np.array([[0, 0, 1.0], [0, 0, -1.0], [1.0, 0, 0], [0, -0.6, 0.8], [0, 0, 0], [0.48, 0.6, -0.64]])
+    keys = _k.vertex_keys(np.uint64(9), normals.shape[0])
+    d = sample_directions(normals, 12, seed=9, measure=measure, stratified=stratified, start=5)
+    warp = warps.square_to_cosine_hemisphere if measure == "cosine" else warps.square_to_uniform_hemisphere
+    for v, (nx, ny, nz) in enumerate(normals):
+        s0, s1 = rng.scramble_seeds(keys[v])
+        for s in range(12):
+            j = np.uint64(5 + s)
+            uv = rng.scrambled_sobol2_seeded(j, s0, s1) if stratified else rng.random2(j, keys[v])
+            if nx == ny == nz == 0.0:
+                want = warps.square_to_uniform_sphere(*uv)
+            else:
+                x, y, z = warp(*uv)
+                tx, ty, tz, bx, by, bz = warps.frame(nx, ny, nz)
+                want = (x * tx + y * bx + z * nx, x * ty + y * by + z * ny, x * tz + y * bz + z * nz)
+            assert d[v, s].tolist() == np.array(want, dtype=np.float32).tolist(), (v, s)

@@ -16,6 +16,7 @@ import numpy as np
 from numba import njit
 
 from . import rng, warps
+from .rays import sobol_cosine_direction
 
 KIND_CODES = {"distant": 0, "point": 1, "spot": 2, "sphere": 3, "rect": 4, "disk": 5, "dome": 6}
 DISTANT, POINT, SPOT, SPHERE, RECT, DISK, DOME = range(7)
@@ -431,33 +432,6 @@ def path_hashes(p0, p1):
     return out
 
 
-@njit(cache=True, error_model="numpy", forceinline=True)
-def concentric_selects(u0, u1):
-    """:func:`aobake.kernels.warps.square_to_uniform_disk_concentric` bit for bit, its
-    wedge and zero cases chosen by selects instead of branches, so a loop of it
-    vectorises (the division and the polynomial are made for both wedges alike)."""
-    a = 2.0 * u0 - 1.0
-    b = 2.0 * u1 - 1.0
-    wide = a * a > b * b
-    r = a if wide else b
-    q = b if wide else a
-    s, c = warps.sincos_quarter((math.pi / 4.0) * (q / r))
-    x = r * c if wide else r * s
-    y = r * s if wide else r * c
-    zero = (a == 0.0) & (b == 0.0)
-    return (0.0 if zero else x), (0.0 if zero else y)
-
-
-@njit(cache=True, error_model="numpy", forceinline=True)
-def _first_direction(index, s0, s1):
-    """Point ``index`` of the Sobol sequence scrambled with (s0, s1), warped to the
-    cosine-weighted hemisphere about +z: :func:`aobake.kernels.warps.square_to_cosine_hemisphere`
-    of :func:`aobake.kernels.rng.scrambled_sobol2_seeded`, without a branch."""
-    u0, u1 = rng.scrambled_sobol2_fast(index, s0, s1)
-    x, y = concentric_selects(u0, u1)
-    return x, y, math.sqrt(max(0.0, 1.0 - x * x - y * y))
-
-
 @njit(cache=True, error_model="numpy", nogil=True)
 def first_rays(vertices, per, p0, origins, normals, keys, alive, throughput, value_d, value_i, out_live, out_org, out_dir):
     """Start paths 0..len(vertices) * per - 1 (``per`` a vertex in order: path
@@ -486,7 +460,7 @@ def first_rays(vertices, per, p0, origins, normals, keys, alive, throughput, val
             continue
         s0, s1 = rng.scramble_seeds(rng.hash2(keys[v], np.uint64(1000003)))
         for s in range(per):
-            lx[s], ly[s], lz[s] = _first_direction(p0 + s, s0, s1)
+            lx[s], ly[s], lz[s] = sobol_cosine_direction(p0 + s, s0, s1)
         tx, ty, tz, bx, by, bz = warps.frame(nx, ny, nz)
         ox, oy, oz = origins[v, 0], origins[v, 1], origins[v, 2]
         for s in range(per):

@@ -67,6 +67,23 @@ def square_to_uniform_disk_concentric(u0, u1):
     return b * s, b * c
 
 
+@njit(cache=True, error_model="numpy", forceinline=True)
+def concentric_selects(u0, u1):
+    """:func:`square_to_uniform_disk_concentric` bit for bit, its wedge and zero cases
+    chosen by selects instead of branches, so a loop of it vectorises (the division and
+    the polynomial are made for both wedges alike)."""
+    a = 2.0 * u0 - 1.0
+    b = 2.0 * u1 - 1.0
+    wide = a * a > b * b
+    r = a if wide else b
+    q = b if wide else a
+    s, c = sincos_quarter((math.pi / 4.0) * (q / r))
+    x = r * c if wide else r * s
+    y = r * s if wide else r * c
+    zero = (a == 0.0) & (b == 0.0)
+    return (0.0 if zero else x), (0.0 if zero else y)
+
+
 @njit(cache=True, inline="always")
 def square_to_cosine_hemisphere(u0, u1):
     """Cosine-weighted direction about +z (Malley's method on the concentric disk)."""
