@@ -238,7 +238,7 @@ def _halves(points, areas, members, spread):
     return _halves(points, areas, members[low], spread) + _halves(points, areas, members[~low], spread)
 
 
-@pytest.mark.parametrize("seed", [0, 1, 2])
+@pytest.mark.parametrize("seed", [0, 1])
 def test_split_spread_buckets_is_the_recursive_rule(seed):
     """Scattered clusters of random sizes (some coincident points): the level-by-level
     numpy split gives the pieces, in the order, of halving each bucket recursively."""
