@@ -32,10 +32,11 @@ class AobakeGroup(click.Group):
         import threading
 
         from . import progress
+        from .precompile import fixed_mmap_threshold
 
         if threading.current_thread() is threading.main_thread():
             progress.install_interrupt_handler()  # Ctrl-C during numba compilation is not lost
-        _fixed_mmap_threshold()
+        fixed_mmap_threshold()
         with _held_warnings() as held:
             try:
                 result = super().invoke(ctx)
@@ -99,23 +100,6 @@ def _end_process(exc: SystemExit) -> None:
         except (OSError, ValueError):
             pass
     os._exit(code or 0)
-
-
-def _fixed_mmap_threshold() -> None:
-    """Have glibc's malloc map every block over 4 MiB on its own and unmap it when freed.
-    By default the threshold rises to the largest block freed (up to 32 MiB), so a
-    mesh's freed temporaries stay in the heap and the peak memory of a large bake grows
-    by ~15 bytes per vertex. 4 MiB, not less: numba's compiler allocates many blocks of
-    hundreds of KiB, and mapping each made a cold compile 1.5x slower (docs/process.md).
-    Linux with glibc only; elsewhere nothing happens."""
-    if not sys.platform.startswith("linux"):
-        return
-    try:
-        import ctypes
-
-        ctypes.CDLL("libc.so.6").mallopt(-3, 4 << 20)  # M_MMAP_THRESHOLD
-    except (OSError, AttributeError):
-        pass
 
 
 def _held_warnings():
