@@ -25,7 +25,6 @@ import atexit
 import contextlib
 import importlib
 import os
-import subprocess
 import sys
 import time
 
@@ -40,7 +39,7 @@ TARGETS = {
 WAIT_LIMIT = 600.0
 
 _enabled = False
-_helpers: dict[str, subprocess.Popen] = {}
+_helpers: dict = {}  # target -> subprocess.Popen
 _registered = False  # stop_all is an atexit function
 
 
@@ -95,6 +94,8 @@ def start(target: str, *, threads: int | None = None, command: list[str] | None 
         return False
     if command is None and is_cached(target) is not False:
         return False
+    import subprocess
+
     if command is None:
         command = [sys.executable, "-m", "aobake.precompile", target]
     env = dict(os.environ)
@@ -133,9 +134,11 @@ def wait(target: str, limit: float | None = None) -> bool:
     return code == 0
 
 
-def _wait_as_compile(target: str, proc: subprocess.Popen, limit: float):
+def _wait_as_compile(target: str, proc, limit: float):
     """``proc``'s exit code (None after ``limit`` seconds), inside a ``numba:compile``
     event for ``target``'s kernel."""
+    import subprocess
+
     from numba.core import event
 
     try:
@@ -150,7 +153,7 @@ def _wait_as_compile(target: str, proc: subprocess.Popen, limit: float):
             return None
 
 
-def _end(proc: subprocess.Popen) -> None:
+def _end(proc) -> None:
     """Kill ``proc`` if it still runs, and reap it (no zombie)."""
     try:
         if proc.poll() is None:
@@ -165,6 +168,23 @@ def stop_all() -> None:
     """End every helper still running (at exit, after an interrupt or an error)."""
     while _helpers:
         _end(_helpers.popitem()[1])
+
+
+def fixed_mmap_threshold() -> None:
+    """Have glibc's malloc map every block over 4 MiB on its own and unmap it when freed.
+    By default the threshold rises to the largest block freed (up to 32 MiB), so a
+    mesh's freed temporaries stay in the heap and the peak memory of a large bake grows
+    by ~15 bytes per vertex. 4 MiB, not less: numba's compiler allocates many blocks of
+    hundreds of KiB, and mapping each made a cold compile 1.5x slower (docs/process.md).
+    Linux with glibc only; elsewhere nothing happens. The CLI and the helpers call it."""
+    if not sys.platform.startswith("linux"):
+        return
+    try:
+        import ctypes
+
+        ctypes.CDLL("libc.so.6").mallopt(-3, 4 << 20)  # M_MMAP_THRESHOLD
+    except (OSError, AttributeError):
+        pass
 
 
 def _watch_parent() -> None:
@@ -182,23 +202,6 @@ def _watch_parent() -> None:
     threading.Thread(target=watch, daemon=True).start()
 
 
-def fixed_mmap_threshold() -> None:
-    """Have glibc's malloc map every block over 4 MiB on its own and unmap it when freed.
-    By default the threshold rises to the largest block freed (up to 32 MiB), so a
-    mesh's freed temporaries stay in the heap and the peak memory of a large bake grows
-    by ~15 bytes per vertex. 4 MiB, not less: numba's compiler allocates many blocks of
-    hundreds of KiB, and mapping each made a cold compile 1.5x slower (docs/process.md).
-    Linux with glibc only; elsewhere nothing happens. (The CLI's and the helper's.)"""
-    if not sys.platform.startswith("linux"):
-        return
-    try:
-        import ctypes
-
-        ctypes.CDLL("libc.so.6").mallopt(-3, 4 << 20)  # M_MMAP_THRESHOLD
-    except (OSError, AttributeError):
-        pass
-
-
 def main(argv: list[str] | None = None) -> None:
     """The helper: compile each target named in ``argv`` into numba's cache, then end the
     process at once (0: compiled, 1: failed; :func:`_watch_parent`'s thread still reads)."""
@@ -206,7 +209,7 @@ def main(argv: list[str] | None = None) -> None:
 
     signal.signal(signal.SIGINT, signal.SIG_DFL)  # Ctrl-C ends it at once (files are renamed whole)
     _watch_parent()
-    fixed_mmap_threshold()  # as the command compiles (docs/process.md)
+    fixed_mmap_threshold()  # as the command compiles
     code = 1
     try:
         for target in sys.argv[1:] if argv is None else argv:

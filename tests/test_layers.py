@@ -18,7 +18,7 @@ PACKAGE = Path(__file__).resolve().parents[1] / "aobake"
 LAYERS = {
     "constants": 0, "errors": 0, "_types": 0, "checks": 0, "options": 0, "lazy": 0,
     "kernels": 1,
-    "mesh": 2, "sampling": 2, "progress": 2, "precompile": 2, "shading": 2, "ground": 2,
+    "mesh": 2, "sampling": 2, "progress": 2, "shading": 2, "ground": 2, "precompile": 2,
     "tracing": 3, "contacts": 3, "plan": 3, "selection": 3,
     "io": 3,
     "methods": 4,
