@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import contextlib
 import math
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -1231,6 +1232,26 @@ def warm_up_scene():
     return positions, faces
 
 
+def _write_lit_usda(path: Path, positions, faces) -> None:
+    """A minimal USD stage of a triangle mesh lit by a RectLight 3 units above it, facing
+    down (the warm-up's input for the disk method's area-light passes)."""
+    pts = ", ".join(f"({float(x)!r}, {float(y)!r}, {float(z)!r})" for x, y, z in np.asarray(positions, dtype=float))
+    idx = ", ".join(str(int(i)) for i in np.asarray(faces).ravel())
+    path.write_text(
+        '#usda 1.0\n(\n    upAxis = "Y"\n)\n\n'
+        'def Mesh "scene"\n{\n'
+        f"    int[] faceVertexCounts = [{', '.join(['3'] * len(faces))}]\n"
+        f"    int[] faceVertexIndices = [{idx}]\n"
+        f"    point3f[] points = [{pts}]\n"
+        "}\n\n"
+        'def RectLight "light"\n{\n'
+        "    float inputs:width = 1\n    float inputs:height = 1\n    float inputs:intensity = 10\n"
+        "    float3 xformOp:rotateXYZ = (-90, 0, 0)\n    double3 xformOp:translate = (0, 3, 0)\n"
+        '    uniform token[] xformOpOrder = ["xformOp:translate", "xformOp:rotateXYZ"]\n'
+        "}\n"
+    )
+
+
 def _unit_cube():
     """A unit cube centred at the origin: 8 corners (bit k of the index: axis k at +0.5)
     and 12 outward-facing triangles."""
@@ -1280,6 +1301,11 @@ def warm_up(progress: Progress | None = None) -> WarmUpReport:
         bake_file(d / "scene.ply", d / "lit.ply", method=METHODS[0], lights=("point:0,3,0:10",), color=True,
                   n_rays=4, light_samples=2, indirect_rays=2, progress=progress)  # the light kernels
         steps.append("bake --light")
+        _write_lit_usda(d / "lit.usda", positions, faces)
+        with warnings.catch_warnings():  # its scene's warnings (negative light) are not the user's
+            warnings.simplefilter("ignore")
+            bake_file(d / "lit.usda", d / "lit_bunnell.ply", method="bunnell", progress=progress)  # the light passes
+        steps.append("bake --method bunnell (lit)")
         fit_field_file(d / "cube.ply", d / "cube.npz", progress=progress, resolution=4, radial_samples=8)
         steps.append("field")
         grid = d / "grid.ply"

@@ -156,6 +156,8 @@ def test_warm_up_compiles_what_the_commands_need(tmp_path):
         ["bake", str(mesh), "-o", str(tmp_path / "l.ply"), "--light", "distant:1,2,1:3", "--color", "--rays", "8"],
         ["bake", str(Path(__file__).resolve().parents[1] / "data" / "cornell_box.usda"), "-o",
          str(tmp_path / "c.ply"), "--rays", "8", "--light-samples", "4", "--indirect-rays", "4"],
+        ["bake", str(Path(__file__).resolve().parents[1] / "data" / "cornell_box.usda"), "-o",
+         str(tmp_path / "cb.ply"), "--method", "bunnell"],
     ):
         result = runner.invoke(main, args)
         assert result.exit_code == 0, (args, result.output)
