@@ -797,10 +797,14 @@ def compare(reference, candidate, threshold, worst, json_path, plot_path, render
 @click.argument("mesh", type=click.Path(path_type=Path))
 @click.option("-o", "--output", "out_dir", required=True, type=click.Path(path_type=Path), help="Directory for the results.")
 @click.option(
-    "--reference-rays", type=click.IntRange(min=16), default=4096, show_default=True, help="Rays of the Embree reference."
+    "--reference-rays",
+    type=click.IntRange(min=16),
+    default=4096,
+    show_default=True,
+    help="Rays of the Embree reference (lit scenes: also its samples per area light, with 4x as many paths).",
 )
 @click.option("--repeats", type=click.IntRange(min=1), default=3, show_default=True, help="Time each setting this often (best).")
-@click.option("--no-plot", is_flag=True, help="Skip pareto.png (no matplotlib needed).")
+@click.option("--no-plot", is_flag=True, help="Skip pareto.png and pareto_irradiance.png (no matplotlib needed).")
 @click.option(
     "--no-fields",
     is_flag=True,
@@ -809,14 +813,21 @@ def compare(reference, candidate, threshold, worst, json_path, plot_path, render
 @click.option(
     "--up", type=click.Choice(["Y", "Z"]), default=None, help="Up axis for the field rows' ground [default: the file's, else Y]."
 )
+@LIGHT_OPTIONS[1]
+@LIGHT_OPTIONS[2]
 @common_options
-def sweep(mesh, out_dir, reference_rays, repeats, no_plot, no_fields, up, seed, threads, quiet):
+def sweep(mesh, out_dir, reference_rays, repeats, no_plot, no_fields, up, lights, no_scene_lights, seed, threads, quiet):
     """What accuracy costs in time: bake MESH over a grid of methods and settings.
 
     Each setting is timed and compared with a high-ray Embree reference (cached in
     OUTPUT). Rows marked "(ground)" use MESH as a rigid occluder on a ground grid and
     score AO fields on the ground. Writes sweep.csv, sweep.json and pareto.png (error
     against seconds, log-log, Pareto fronts marked) into OUTPUT and prints the table.
+
+    A lit scene (its lights or emitters, or --light) also gets irradiance rows, each
+    method's light alone timed and scored by relative RMSE against Embree's irradiance
+    at --reference-rays samples and 4x as many paths (cached too): marked "irradiance"
+    in the CSV and JSON, plotted in pareto_irradiance.png.
     """
     from .pipeline import sweep_file
     from .progress import make_progress
@@ -829,7 +840,8 @@ def sweep(mesh, out_dir, reference_rays, repeats, no_plot, no_fields, up, seed, 
 
     def on_row(row):
         if not quiet:
-            click.echo(f"  {row.method:8s} {row.label:24s} {row.seconds:8.3f} s  RMSE {row.rmse:.4f}", err=True)
+            what = "RMSE" if row.quantity == "ao" else "rel. RMSE of irradiance"
+            click.echo(f"  {row.method:8s} {row.label:24s} {row.seconds:8.3f} s  {what} {row.rmse:.4f}", err=True)
 
     with compile_notice(quiet):
         rows = sweep_file(
@@ -844,7 +856,11 @@ def sweep(mesh, out_dir, reference_rays, repeats, no_plot, no_fields, up, seed, 
             plot=plot,
             progress=make_progress(quiet),
             on_row=on_row,
+            lights=lights,
+            scene_lights=not no_scene_lights,
         )
+    if not no_plot and not plot and any(r.quantity != "ao" for r in rows):
+        click.echo("Note: matplotlib is not installed; skipping pareto_irradiance.png too", err=True)
     click.echo(to_markdown(rows))
 
 
