@@ -7,6 +7,7 @@ from __future__ import annotations
 
 from contextlib import contextmanager
 
+from .constants import SERIAL_VERTICES
 from .errors import NumericalError
 
 
@@ -24,6 +25,12 @@ def check_result(values, what: str, *, lower: float, upper: float, method: str) 
             "or non-finite "
             f"(first: vertex {int(first)}, value {float(values.flat[flat])!r})"
         )
+
+
+def mesh_threads(threads: int | None, n_vertices: int) -> int | None:
+    """``threads`` for a mesh of ``n_vertices``: one where none is named and the mesh is
+    small (``SERIAL_VERTICES``: waking the pool costs more than it saves), else as given."""
+    return 1 if threads is None and n_vertices <= SERIAL_VERTICES else threads
 
 
 @contextmanager

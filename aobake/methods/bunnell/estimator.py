@@ -8,8 +8,7 @@ import dataclasses
 import numpy as np
 
 from ..._types import AOArray
-from ...checks import check_result, numba_threads
-from ...constants import SERIAL_VERTICES
+from ...checks import check_result, mesh_threads, numba_threads
 from ...ground import Ground, plane_occlusion, reach_cosines
 from ...mesh import Surface
 from ...options import build
@@ -118,8 +117,7 @@ def estimate(
 
         # the tree pass's kernel, when not cached, compiles in a helper meanwhile (the CLI)
         precompile.start("tree-pass", threads=options.threads)
-    if options.threads is None and surface.n_vertices <= SERIAL_VERTICES:
-        options = dataclasses.replace(options, threads=1)  # a small mesh: see SERIAL_VERTICES
+    options = dataclasses.replace(options, threads=mesh_threads(options.threads, surface.n_vertices))
     with numba_threads(options.threads):
         return _estimate(surface, options, progress, scheme, exact, tree, ground)
 

@@ -19,7 +19,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ...checks import numba_threads
+from ...checks import mesh_threads, numba_threads
 from ...constants import (
     BLOCK_RAYS,
     EPS32,
@@ -27,7 +27,6 @@ from ...constants import (
     LIGHT_DISKS,
     NEAR_OFFSET_REL,
     RAY_OFFSET_ULPS,
-    SERIAL_VERTICES,
 )
 from ...contacts import contact_origins, ray_offsets
 from ...errors import InputError, NumericalError
@@ -197,8 +196,7 @@ def disk_light(
         )
     if theta is None and n > BRUTE_MAX_VERTICES:
         raise ValueError(f"theta=None (brute force) takes at most {BRUTE_MAX_VERTICES:,} vertices, got {n:,}")
-    threads = 1 if options.threads is None and n <= SERIAL_VERTICES else options.threads
-    with numba_threads(threads):
+    with numba_threads(mesh_threads(options.threads, n)):
         return _disk_light(surface, shading, options, bounces, shadow_passes, light_disks, aimed, faces_occlude,
                            theta, (aimed_theta, aimed_edge), share, progress, ground)  # fmt: skip
 
