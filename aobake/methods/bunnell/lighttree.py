@@ -14,11 +14,9 @@ import math
 
 import numpy as np
 
-from ...constants import OPEN_COHERENCE
 from ...kernels import hierarchy as _h
 from ...kernels import transfertree as _kt2
-from ...kernels import treewalk as _tw
-from .transfer import TRANSFER_CHUNKS, TRANSFER_LEAF_SIZE, receiver_buckets
+from .transfer import TRANSFER_CHUNKS, TRANSFER_LEAF_SIZE, bucketed, opening_table
 from .tree import node_geometry, tree_keys
 
 #: Opening parameter of the lit pipeline's transfer trees (the unshadowed bounce and the
@@ -51,14 +49,7 @@ class DiskTree:
         coherence = np.empty(skip.shape[0])
         with np.errstate(invalid="ignore", divide="ignore"):
             _h.node_coherence(normals, areas, self.order, start, stop, coherence)
-        b = g[:, 3]
-        size = np.maximum(g[:, 4], math.pi * b**2) * (1.0 + OPEN_COHERENCE * (1.0 - coherence))
-        with np.errstate(invalid="ignore", over="ignore"):
-            open_d2 = np.maximum(self.theta * size, b**2)
-        table = np.zeros((skip.shape[0], _kt2.GEOMETRY_COLS))
-        table[:, _kt2.G_X : _kt2.G_Z + 1] = g[:, :3]
-        table[:, _kt2.G_OPEN_D2] = np.where(np.isnan(open_d2), np.inf, open_d2)
-        self.table = table
+        self.table = opening_table(g, coherence, self.theta)
 
     @property
     def n_nodes(self) -> int:
@@ -72,9 +63,7 @@ class Receivers:
         self.points = np.ascontiguousarray(points, dtype=np.float64)
         self.normals = np.ascontiguousarray(normals, dtype=np.float64)
         self.n = int(self.points.shape[0])
-        self.order, self.bucket_start = receiver_buckets(self.points)
-        self.bounds = np.zeros((self.bucket_start.shape[0] - 1, _tw.BOUND_COLS))
-        _tw.bucket_bounds(self.points, self.normals, np.zeros(self.n), self.order, self.bucket_start, self.bounds)
+        self.order, self.bucket_start, self.bounds = bucketed(self.points, self.normals)
         self._no_cells = (np.zeros(self.n + 1, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros(0))
 
 

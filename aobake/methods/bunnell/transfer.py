@@ -92,6 +92,36 @@ TRANSFER_BUCKET = 128
 TRANSFER_LEAF_SIZE = 8
 
 
+def opening_table(geometry, coherence, theta: float, reach=None) -> np.ndarray:
+    """(m, ``transfertree.GEOMETRY_COLS``) node rows of a transfer tree: each node's centre
+    and the squared distance beyond which it is used whole: ``theta`` times its size (its
+    area or bounding disk, larger for incoherent normals), and never within its bounding
+    radius, or ``reach`` (m,) where given (the near field's)."""
+    from ...constants import OPEN_COHERENCE
+    from ...kernels import transfertree as _kt2
+
+    b = geometry[:, 3]
+    size = np.maximum(geometry[:, 4], math.pi * b**2) * (1.0 + OPEN_COHERENCE * (1.0 - coherence))
+    inner = b if reach is None else np.maximum(b, reach)
+    with np.errstate(invalid="ignore", over="ignore"):
+        open_d2 = np.maximum(theta * size, inner**2)
+    table = np.zeros((geometry.shape[0], _kt2.GEOMETRY_COLS))
+    table[:, _kt2.G_X : _kt2.G_Z + 1] = geometry[:, :3]
+    table[:, _kt2.G_OPEN_D2] = np.where(np.isnan(open_d2), np.inf, open_d2)
+    return table
+
+
+def bucketed(points, normals):
+    """``(order, bucket_start, bounds)``: :func:`receiver_buckets` of ``points`` and each
+    bucket's ``treewalk.bucket_bounds`` (receivers at the points themselves)."""
+    from ...kernels import treewalk as _tw
+
+    order, bucket_start = receiver_buckets(points)
+    bounds = np.zeros((bucket_start.shape[0] - 1, _tw.BOUND_COLS))
+    _tw.bucket_bounds(points, normals, np.zeros(points.shape[0]), order, bucket_start, bounds)
+    return order, bucket_start, bounds
+
+
 def receiver_buckets(points):
     """``(order, bucket_start)``: every receiver once, grouped into compact buckets of at
     most TRANSFER_BUCKET (the leaves of a median-split tree over ``points``)."""
@@ -112,9 +142,6 @@ class TransferScene:
     """
 
     def __init__(self, elements: DiskElements, tree, theta: float, near: float):
-        from ...constants import OPEN_COHERENCE
-        from ...kernels import transfertree as _kt2
-        from ...kernels import treewalk as _tw
         from .tree import node_coherence, refit_tree
 
         self.n_vertices = elements.n_vertices
@@ -135,22 +162,12 @@ class TransferScene:
         self._own_pos = np.full(self.n_vertices, -1, dtype=np.int64)  # each vertex's disk in tree order
         self._own_pos[order] = np.arange(order.shape[0])
         g = tree.geometry
-        b = g[:, 3]
-        size = np.maximum(g[:, 4], math.pi * b**2)
-        size = size * (1.0 + OPEN_COHERENCE * (1.0 - node_coherence(tree, elements.normals, elements.areas)))
         # how far from a node's centre a receiver can be in the near field of one of its
         # disks (a hair more, for rounding): such nodes are never used whole
-        reach = (b + np.sqrt(self.near * g[:, 5])) * (1.0 + 1e-9)
-        with np.errstate(invalid="ignore", over="ignore"):
-            open_d2 = np.maximum(self.theta * size, np.maximum(b, reach) ** 2)
-        geometry = np.zeros((tree.n_nodes, _kt2.GEOMETRY_COLS))
-        geometry[:, _kt2.G_X : _kt2.G_Z + 1] = g[:, :3]
-        geometry[:, _kt2.G_OPEN_D2] = np.where(np.isnan(open_d2), np.inf, open_d2)
-        self._geometry = geometry
-        self._recv_order, self._bucket_start = receiver_buckets(self._points)
-        self._bounds = np.zeros((self._bucket_start.shape[0] - 1, _tw.BOUND_COLS))
-        _tw.bucket_bounds(self._points, self._normals, np.zeros(self.n_vertices), self._recv_order,
-                          self._bucket_start, self._bounds)
+        reach = (g[:, 3] + np.sqrt(self.near * g[:, 5])) * (1.0 + 1e-9)
+        coherence = node_coherence(tree, elements.normals, elements.areas)
+        self._geometry = opening_table(g, coherence, self.theta, reach)
+        self._recv_order, self._bucket_start, self._bounds = bucketed(self._points, self._normals)
         self._cells = self._near_cells(elements, reach)
 
     def _near_cells(self, elements: DiskElements, reach):
