@@ -13,7 +13,10 @@ The default scheme is measured twice: through the cluster trees (the default) an
 the brute-force passes (``theta=None``). ``--big N`` instead bakes bench/common.py's
 spheres on a floor at about N vertices under a rect light (or ``--big-light point``) with
 both methods at their defaults: seconds and peak memory of each, in child processes.
-docs/bunnell-light.md records runs.
+``--relight N`` times re-lighting (``prepare_light`` / ``LitScene.light``) on those spheres
+at about N vertices: a point light moved to six places (one bounce), alone and beside a
+fixed rect light, each call against a fresh ``disk_light`` with the same lights (the
+goal of issue 16: <= 0.2 s a call on 100k vertices). docs/bunnell-light.md records runs.
 """
 
 from __future__ import annotations
@@ -24,6 +27,7 @@ import resource
 import subprocess
 import sys
 import time
+from dataclasses import replace
 
 from bench_light import references, rel_rmse
 
@@ -44,8 +48,12 @@ def main():
     parser.add_argument("--disks", default="256", help="disks per area light to measure")
     parser.add_argument("--big", type=int, default=0, help="bake a lit scene of about N vertices instead")
     parser.add_argument("--big-light", default="rect", choices=("rect", "point"))
+    parser.add_argument("--relight", type=int, default=0, help="time re-lighting a prepared scene of about N vertices")
+    parser.add_argument("--repeats", type=int, default=3, help="--relight: rounds (best of)")
     parser.add_argument("--child", default="", help=argparse.SUPPRESS)
     args = parser.parse_args()
+    if args.relight:
+        return relight(args.relight, args.repeats)
     if args.child:
         return child(args.child, args.big, args.big_light)
     if args.big:
@@ -121,6 +129,38 @@ def big(n, kind):
         print(f"  {method} defaults: {run['seconds']:.2f} s ({run['cpu']:.2f} s of CPU), peak RSS {run['peak_mb']:.0f} MB"
               + (f", {run['negative']} vertices set from negative to 0" if method == "bunnell" else ""))
     print(f"  bunnell against embree's defaults: rel. RMSE {rel_rmse(out['bunnell'], out['embree']):.4f}")
+
+
+def relight(n, repeats):
+    """Time per re-lighting call (wall and CPU, best of ``repeats`` rounds of six moved
+    lamps) and the set-up, against a fresh disk_light per light set; the same bits."""
+    import numpy as np
+
+    from aobake.methods.bunnell.light import prepare_light
+    from aobake.shading import Light
+
+    from common import interleaved, timed
+
+    s, sh, desc = lit_scene(n, "rect")
+    rect = sh.lights
+    lamps = [Light.make("point", "lamp", (20.0,) * 3, position=(2.5 * np.cos(a), 2.5 * np.sin(a), 3.0))
+             for a in np.linspace(0, 2 * np.pi, 6, endpoint=False)]  # fmt: skip
+    disk_light(s, sh)  # compile
+    print(f"scene: {desc}; a point light (intensity 20) moved to six places 3 above the floor, one bounce")
+    for what, fixed in (("lamp alone", ()), ("lamp beside the rect light", rect)):
+        prep = timed(lambda fixed=fixed: prepare_light(s, sh).light((*fixed, lamps[0])))
+        scene = prepare_light(s, sh)
+        first = timed(lambda scene=scene, fixed=fixed: scene.light((*fixed, lamps[0])))
+        t = interleaved({"relight": lambda scene=scene, fixed=fixed: [scene.light((*fixed, lamp)) for lamp in lamps]}, repeats)
+        some = lamps[:2]  # a fresh bake with the rect light takes seconds: two of them
+        fresh = timed(lambda fixed=fixed, some=some: [disk_light(s, replace(sh, lights=(*fixed, lamp))) for lamp in some])
+        same = all(np.array_equal(a.irradiance, b.irradiance) for a, b in zip(t["relight"].result[: len(some)], fresh.result, strict=True))
+        k = len(lamps)
+        call, call_cpu = t["relight"].seconds / k, t["relight"].cpu / k
+        print(f"  {what}: prepare + first call {prep.seconds:.3f} s ({prep.cpu:.3f} s CPU), the first call on a prepared "
+              f"scene {first.seconds:.3f} s; a re-lighting call {call:.3f} s wall ({call_cpu:.3f} s CPU, best of "
+              f"{t['relight'].repeats}); a fresh disk_light {fresh.seconds / len(some):.3f} s ({fresh.cpu / len(some):.3f} s "
+              f"CPU): {fresh.seconds / len(some) / call:.1f}x; results {'bit-identical' if same else 'DIFFER'}")
 
 
 if __name__ == "__main__":

@@ -11,7 +11,7 @@ from __future__ import annotations
 from ...lazy import exports
 from .options import BunnellOptions
 
-__all__ = ["BunnellOptions", "bunnell_ao", "disk_light", "run", "run_light"]  # the rest: for tests, the bench, animation
+__all__ = ["BunnellOptions", "LitScene", "bunnell_ao", "disk_light", "prepare_light", "run", "run_light"]  # the rest: for tests, the bench, animation
 
 # public and test-facing names -> the module that defines them
 _LAZY = {
@@ -31,6 +31,8 @@ _LAZY = {
     "settings": "scheme",
     "run_light": "light",
     "disk_light": "light",
+    "prepare_light": "light",
+    "LitScene": "light",
     "emitter_disks": "light",
 }
 

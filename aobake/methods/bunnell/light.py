@@ -15,7 +15,7 @@ from __future__ import annotations
 import math
 import time
 import warnings
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
@@ -184,8 +184,34 @@ def disk_light(
         ``error`` zeros (nothing is sampled), ``n_bounce_rays`` 0, ``samples`` zeros,
         ``negative``: vertices whose shadowed light went below zero (set to 0).
     """
+    t0 = time.perf_counter()
+    scene = prepare_light(surface, shading, options, shadow_passes=shadow_passes, light_disks=light_disks, aimed=aimed,
+                          faces_occlude=faces_occlude, theta=theta, aimed_theta=aimed_theta, aimed_edge=aimed_edge,
+                          share=share, ground=ground)  # fmt: skip
+    result = scene.light(bounces=bounces, progress=progress)
+    return replace(result, seconds=time.perf_counter() - t0)
+
+
+def prepare_light(
+    surface: Surface,
+    shading: Shading,
+    options: BunnellOptions | None = None,
+    *,
+    shadow_passes: int = SHADOW_PASSES,
+    light_disks: int = LIGHT_DISKS,
+    aimed: bool = True,
+    faces_occlude: bool = True,
+    theta: float | None = LIGHT_THETA,
+    aimed_theta: float = AIMED_THETA,
+    aimed_edge: float = AIMED_EDGE,
+    share: bool = True,
+    ground: Ground | None = None,
+) -> LitScene:
+    """``surface`` and ``shading`` prepared for :meth:`LitScene.light`, which lights it
+    with any lights (moved, re-coloured, added) without rebuilding what does not depend
+    on them. The parameters are :func:`disk_light`'s; ``disk_light(...)`` equals
+    ``prepare_light(...).light()`` (the same code)."""
     options = BunnellOptions() if options is None else options
-    bounces = options.bounces if bounces is None else int(bounces)
     check_shading(surface, shading)
     n = surface.n_vertices
     if n > MAX_VERTICES:
@@ -196,9 +222,179 @@ def disk_light(
         )
     if theta is None and n > BRUTE_MAX_VERTICES:
         raise ValueError(f"theta=None (brute force) takes at most {BRUTE_MAX_VERTICES:,} vertices, got {n:,}")
+    settings = _Settings(shadow_passes, light_disks, aimed, faces_occlude, theta, (aimed_theta, aimed_edge), share)
     with numba_threads(mesh_threads(options.threads, n)):
-        return _disk_light(surface, shading, options, bounces, shadow_passes, light_disks, aimed, faces_occlude,
-                           theta, (aimed_theta, aimed_edge), share, progress, ground)  # fmt: skip
+        return LitScene(surface, shading, options, settings, ground)
+
+
+@dataclass(frozen=True)
+class _Settings:
+    """:func:`disk_light`'s scheme parameters, as a prepared scene keeps them."""
+
+    shadow_passes: int
+    light_disks: int
+    aimed: bool
+    faces_occlude: bool
+    theta: float | None
+    aimed_tree: tuple  # (aimed_theta, aimed_edge)
+    share: bool
+
+
+class LitScene:
+    """A surface and its shading prepared for the disk method's light
+    (:func:`prepare_light`): the disks, the Embree scene and contact-safe origins of the
+    shadow rays, the passes' cluster trees, a dome's AO, and the last area lights' shadowed
+    light are built once, on first use, and kept; :meth:`light` recomputes only what the
+    lights change (the shadow rays of point, spot and distant lights, the area lights'
+    passes when those lights changed, the bounces)."""
+
+    def __init__(self, surface: Surface, shading: Shading, options: BunnellOptions, settings: _Settings,
+                 ground: Ground | None):  # fmt: skip
+        self.surface, self.shading, self.options, self.settings, self.ground = surface, shading, options, settings, ground
+        self.elements = build_elements(surface)
+        self._rays = _ShadowRays(surface, options, ground)
+        self._trees: _Trees | None = None
+        self._ao = None  # the dome's occlusion (cosine measure), once a shadowed dome asks
+        self._area_key = None  # the area lights (and emitters) of the kept emitted light
+        self._area = None  # (their shadowed light at the vertices, the vertices below zero)
+
+    @property
+    def n_vertices(self) -> int:
+        return self.surface.n_vertices
+
+    def light(self, lights=None, *, bounces: int | None = None, progress: Progress | None = None) -> LightResult:
+        """The irradiance under ``lights`` (a sequence of :class:`aobake.shading.Light`,
+        or ``--light`` strings such as ``"point:0,2,0:10"``; default: the shading's own),
+        with ``bounces`` (default: the options'); the surface's albedo and emission are
+        the shading's. Equals :func:`disk_light` with those lights, bit for bit."""
+        lights = self.shading.lights if lights is None else _checked_lights(self.surface, lights)
+        bounces = self.options.bounces if bounces is None else int(bounces)
+        with numba_threads(mesh_threads(self.options.threads, self.n_vertices)):
+            return self._light(tuple(lights), bounces, progress or NullProgress())
+
+    def _light(self, lights: tuple, bounces: int, progress: Progress) -> LightResult:
+        st, shading, elements = self.settings, self.shading, self.elements
+        n = self.n_vertices
+        t0 = time.perf_counter()
+        progress.start(2 + (1 + st.shadow_passes) * (1 + bounces), "light")
+        exact, stats, contacts, rays = _exact_direct(self._rays, lights)
+        progress.advance(1)
+        direct = exact
+        dome = self._dome(lights)
+        if dome is not None:
+            direct = direct + dome
+        progress.advance(1)
+        bouncing = bounces > 0 and shading.reflects
+        key = _area_key(lights, st.light_disks)
+        negative = np.zeros(n, dtype=bool)
+        if key == self._area_key:  # the same area lights and emitters: their light is kept
+            lit, low = self._area
+            direct = direct + lit
+            negative |= low
+            progress.advance(1 + st.shadow_passes)
+        else:
+            emitters = emitter_disks(elements, shading, lights, st.light_disks)
+            if emitters.size:
+                trees = self._trees_for(True)
+                if st.aimed:
+                    patches = _merged(emitter_disks(elements, shading, lights, LIGHT_PATCHES), LIGHT_PATCHES)
+                    emitting = _emitting_vertices(self.surface, shading)
+                    lit, low = _aimed(elements, emitters, patches, st.shadow_passes, progress, emitting, st.faces_occlude, trees)
+                else:
+                    lit, low = _shadowed(elements, emitters, None, st.shadow_passes, progress, st.faces_occlude, trees)
+            else:
+                lit, low = np.zeros((n, 3)), np.zeros(n, dtype=bool)
+                progress.advance(1 + st.shadow_passes)
+            self._area_key, self._area = key, (lit, low)
+            direct = direct + lit
+            negative |= low
+
+        indirect = np.zeros((n, 3))
+        albedo = np.asarray(shading.vertex_albedo, dtype=np.float64)
+        last = direct
+        for _ in range(bounces if shading.reflects else 0):
+            radiance = albedo * last / math.pi
+            if not np.any(radiance > 0):
+                break
+            last, low = _shadowed(elements, None, radiance, st.shadow_passes, progress, st.faces_occlude,
+                                  self._trees_for(bouncing))  # fmt: skip
+            indirect += last
+            negative |= low
+        progress.finish()
+        for name, arr in (("direct", direct), ("indirect", indirect)):
+            if not np.isfinite(arr).all() or arr.min(initial=0.0) < 0:
+                raise NumericalError(f"{self.surface.source}: the disk transfer produced a {name} irradiance that is negative or not finite")
+        return LightResult(
+            direct=direct,
+            indirect=indirect,
+            error=np.zeros((n, 3)),
+            n_shadow_rays=rays,
+            n_bounce_rays=0,
+            lights=stats,
+            samples=np.zeros(n, dtype=np.int64),
+            seconds=time.perf_counter() - t0,
+            contacts=contacts,
+            negative=int(np.count_nonzero(negative)),
+        )
+
+    def _trees_for(self, needed: bool) -> _Trees | None:
+        """The passes' trees (built on first need; None for the brute-force passes)."""
+        st = self.settings
+        if st.theta is None or not needed:
+            return None
+        if self._trees is None:
+            self._trees = _Trees(self.elements, st.theta, st.aimed_tree, st.faces_occlude, st.share)
+        return self._trees
+
+    def _dome(self, lights):
+        """(n, 3) direct irradiance of the domes, pi L (1 - A) with A the disk method's
+        cosine-weighted occlusion (pi L without shadows; A computed once); None without a dome."""
+        domes = [light for light in lights if light.kind == "dome" and not light.is_black]
+        if not domes:
+            return None
+        surface = self.surface
+        has_normal = np.any(np.asarray(surface.normals) != 0, axis=1).astype(np.float64)
+        open_sky = sum((light.value for light in domes if not light.shadow), np.zeros(3))
+        shadowed = sum((light.value for light in domes if light.shadow), np.zeros(3))
+        out = math.pi * has_normal[:, None] * open_sky[None, :]
+        if np.any(shadowed > 0):
+            if self._ao is None:
+                from .estimator import bunnell_ao
+
+                self._ao = np.asarray(bunnell_ao(surface, replace(self.options, measure="cosine"), ground=self.ground))
+            out = out + math.pi * (has_normal * self._ao)[:, None] * shadowed[None, :]
+        return out
+
+
+def _checked_lights(surface: Surface, lights) -> tuple:
+    """``lights`` as :class:`Light` objects (``--light`` strings parsed); a bad one: an
+    ``InputError`` naming the surface's file."""
+    from ...io.lights import parse_light_spec
+    from ...shading import Light
+
+    out = []
+    for k, light in enumerate(lights, 1):
+        if isinstance(light, str):
+            try:
+                light = parse_light_spec(light, k)
+            except ValueError as exc:
+                raise InputError(surface.source, str(exc)) from None
+        if not isinstance(light, Light):
+            raise TypeError(f"light {k}: expected an aobake.shading.Light or a --light string, got {type(light).__name__}")
+        out.append(light)
+    return tuple(out)
+
+
+def _area_key(lights, light_disks: int) -> tuple:
+    """What the emitted light (area lights and emitting triangles) depends on among the
+    lights: every field of each area light, as bytes where it is an array."""
+    key = []
+    for light in lights:
+        if light.is_black or light.kind not in AREA_KINDS:
+            continue
+        key.append(tuple(np.asarray(getattr(light, f.name)).tobytes() if isinstance(getattr(light, f.name), np.ndarray)
+                         else getattr(light, f.name) for f in fields(light)))  # fmt: skip
+    return (light_disks, *key)
 
 
 class _Trees:
@@ -232,69 +428,6 @@ class _Trees:
             self.occ_own = np.full(len(self.faces), -1, dtype=np.int64)
         else:
             self.faces, self.occluders, self.occ_own = None, self.vertex, idx
-
-
-def _disk_light(
-    surface, shading, options, bounces, shadow_passes, light_disks, aimed, faces_occlude, theta, aimed_tree, share,
-    progress, ground,
-) -> LightResult:  # fmt: skip
-    """:func:`disk_light` once the inputs are checked."""
-    n = surface.n_vertices
-    t0 = time.perf_counter()
-    progress = progress or NullProgress()
-    lights = tuple(shading.lights)
-    elements = build_elements(surface)
-    progress.start(2 + (1 + shadow_passes) * (1 + bounces), "light")
-
-    exact, stats, contacts, rays = _exact_direct(surface, lights, options, ground)
-    progress.advance(1)
-    direct = exact
-    dome = _dome(surface, lights, options, ground)
-    if dome is not None:
-        direct = direct + dome
-    progress.advance(1)
-    emitters = emitter_disks(elements, shading, lights, light_disks)
-    bouncing = bounces > 0 and shading.reflects
-    trees = _Trees(elements, theta, aimed_tree, faces_occlude, share) if theta is not None and (emitters.size or bouncing) else None
-    negative = np.zeros(n, dtype=bool)
-    if emitters.size:
-        if aimed:
-            patches = _merged(emitter_disks(elements, shading, lights, LIGHT_PATCHES), LIGHT_PATCHES)
-            emitting = _emitting_vertices(surface, shading)
-            lit, low = _aimed(elements, emitters, patches, shadow_passes, progress, emitting, faces_occlude, trees)
-        else:
-            lit, low = _shadowed(elements, emitters, None, shadow_passes, progress, faces_occlude, trees)
-        direct = direct + lit
-        negative |= low
-    else:
-        progress.advance(1 + shadow_passes)
-
-    indirect = np.zeros((n, 3))
-    albedo = np.asarray(shading.vertex_albedo, dtype=np.float64)
-    last = direct
-    for _ in range(bounces if shading.reflects else 0):
-        radiance = albedo * last / math.pi
-        if not np.any(radiance > 0):
-            break
-        last, low = _shadowed(elements, None, radiance, shadow_passes, progress, faces_occlude, trees)
-        indirect += last
-        negative |= low
-    progress.finish()
-    for name, arr in (("direct", direct), ("indirect", indirect)):
-        if not np.isfinite(arr).all() or arr.min(initial=0.0) < 0:
-            raise NumericalError(f"{surface.source}: the disk transfer produced a {name} irradiance that is negative or not finite")
-    return LightResult(
-        direct=direct,
-        indirect=indirect,
-        error=np.zeros((n, 3)),
-        n_shadow_rays=rays,
-        n_bounce_rays=0,
-        lights=stats,
-        samples=np.zeros(n, dtype=np.int64),
-        seconds=time.perf_counter() - t0,
-        contacts=contacts,
-        negative=int(np.count_nonzero(negative)),
-    )
 
 
 def _gather(points, normals, centres, disk_normals, areas, radiance, own) -> np.ndarray:
@@ -607,19 +740,45 @@ def _emitting_triangles(elements: DiskElements, shading: Shading, light_disks: i
     return (*fields, np.full(len(fields[2]), group))
 
 
-def _exact_direct(surface: Surface, lights, options: BunnellOptions, ground: Ground | None):
+class _ShadowRays:
+    """What the point, spot and distant lights' shadow rays need that no light changes:
+    the Embree scene, and (on first use) the contact-safe origins and the rays' offsets."""
+
+    def __init__(self, surface: Surface, options: BunnellOptions, ground: Ground | None):
+        self.surface, self.ground = surface, ground
+        self.tracer = tracer = tracer_for(surface.positions, surface.faces)
+        self.points = np.ascontiguousarray(tracer.local)
+        self.normals = np.ascontiguousarray(surface.normals, dtype=np.float64)
+        tmax = math.inf if options.max_distance is None else float(options.max_distance)
+        self.far_cap = min(tmax / float(tracer.scale), INFINITE_DISTANCE)
+        self._origins = None
+
+    def origins(self) -> tuple:
+        """(origins, contacts, faces, shorten): the shadow rays' contact-safe origins, the
+        contacts found, the faces (int64) and each face's self-hit margin."""
+        if self._origins is None:
+            surface, tracer = self.surface, self.tracer
+            edges = _topo.longest_edges(surface.positions, surface.faces)
+            offsets = ray_offsets(surface, tracer.magnitude, None, edges)
+            origins, contacts = contact_origins(surface, tracer, offsets, edges)
+            faces = np.ascontiguousarray(surface.faces, dtype=np.int64)
+            face_edges = edges[faces].max(axis=1) if faces.size else np.zeros(0)
+            shorten = RAY_OFFSET_ULPS * EPS32 * (tracer.magnitude + face_edges)
+            self._origins = (origins, contacts, faces, shorten)
+        return self._origins
+
+
+def _exact_direct(rays: _ShadowRays, lights):
     """Direct irradiance (n, 3) of the point, spot and distant lights (one with an angle
     taken along its axis) by one shadow ray per light and vertex in reach (the reference's kernels and contact-safe origins),
     per-light :class:`LightStats`, the contacts and the rays cast."""
-    n = surface.n_vertices
+    tracer, points, normals, ground = rays.tracer, rays.points, rays.normals, rays.ground
+    n = points.shape[0]
     n_lights = len(lights)
     out = np.zeros((n, 3))
     # a distant light with an angle: its axis alone (E_perp cos, exact for a sharp one)
     lights = tuple(replace(light, angle=0.0) if light.kind == "distant" else light for light in lights)
     exact = np.array([not light.is_black and light.kind in ("point", "spot", "distant") for light in lights], dtype=bool)
-    tracer = tracer_for(surface.positions, surface.faces)
-    points = np.ascontiguousarray(tracer.local)
-    normals = np.ascontiguousarray(surface.normals, dtype=np.float64)
     kinds, params = _kl.light_table(lights, tracer.center)
     reach = _kl.reach_all(points, normals, kinds, params) if n_lights else np.zeros((n, 0), dtype=np.int8)
     black = np.array([light.is_black for light in lights], dtype=bool)
@@ -627,15 +786,9 @@ def _exact_direct(surface: Surface, lights, options: BunnellOptions, ground: Gro
     contacts = 0
     cast = np.zeros(n_lights + 1, dtype=np.int64)
     if exact.any():
-        edges = _topo.longest_edges(surface.positions, surface.faces)
-        offsets = ray_offsets(surface, tracer.magnitude, None, edges)
-        origins, contacts = contact_origins(surface, tracer, offsets, edges)
-        faces = np.ascontiguousarray(surface.faces, dtype=np.int64)
+        origins, contacts, faces, shorten = rays.origins()
         scale = float(tracer.scale)
-        tmax = math.inf if options.max_distance is None else float(options.max_distance)
-        far_cap = min(tmax / scale, INFINITE_DISTANCE)
-        face_edges = edges[faces].max(axis=1) if faces.size else np.zeros(0)
-        shorten = RAY_OFFSET_ULPS * EPS32 * (tracer.magnitude + face_edges)
+        far_cap = rays.far_cap
         emission = np.zeros((max(1, faces.shape[0]), 3))
         keys = _k.vertex_keys(np.uint64(0), n)  # exact lights draw nothing from them
         j_lo = np.zeros(n_lights + 1, dtype=np.int64)
@@ -682,21 +835,3 @@ def _exact_direct(surface: Surface, lights, options: BunnellOptions, ground: Gro
         stats.append(LightStats(light.name, int(codes[1]), int(codes[2]), int(codes[3]), int(codes[4]), int(cast[c])))
     stats.append(LightStats("emitters"))
     return out, tuple(stats), contacts, int(cast.sum())
-
-
-def _dome(surface: Surface, lights, options: BunnellOptions, ground: Ground | None):
-    """(n, 3) direct irradiance of the domes, pi L (1 - A) with A the disk method's
-    cosine-weighted occlusion (pi L without shadows); None without a dome."""
-    domes = [light for light in lights if light.kind == "dome" and not light.is_black]
-    if not domes:
-        return None
-    has_normal = np.any(np.asarray(surface.normals) != 0, axis=1).astype(np.float64)
-    open_sky = sum((light.value for light in domes if not light.shadow), np.zeros(3))
-    shadowed = sum((light.value for light in domes if light.shadow), np.zeros(3))
-    out = math.pi * has_normal[:, None] * open_sky[None, :]
-    if np.any(shadowed > 0):
-        from .estimator import bunnell_ao
-
-        ao = bunnell_ao(surface, replace(options, measure="cosine"), ground=ground)
-        out = out + math.pi * (has_normal * np.asarray(ao))[:, None] * shadowed[None, :]
-    return out
