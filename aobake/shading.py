@@ -294,7 +294,10 @@ class LightResult:
     contacts : int
     negative : int
         Vertices whose light would have gone negative and was set to 0 (the disk
-        method's shadow subtraction; always 0 for the reference).
+        method's shadow subtraction of bounced light; always 0 for the reference).
+    clipped : float
+        What setting them to 0 added: the negative parts' magnitude summed over those
+        vertices and the three channels (scene units; compare ``irradiance.sum()``).
     """
 
     direct: np.ndarray
@@ -307,6 +310,7 @@ class LightResult:
     seconds: float
     contacts: int
     negative: int = 0
+    clipped: float = 0.0
 
     @property
     def irradiance(self) -> np.ndarray:

@@ -210,3 +210,28 @@ def test_plan_for_bunnell_casts_no_ray_for_an_area_light(runner):
     assert "yes direct" in r.stdout and "yes indirect" in r.stdout
     assert "/World/light (rect): 733 receivers in reach, 0 shadow rays" in r.stdout
     assert "expected rays: none" in r.stdout
+
+
+def test_negative_light_is_counted_measured_and_reported():
+    """The bounce's shadow passes take some of the box's vertices below zero: counted,
+    their negative parts' magnitude summed (the clamp's addition to the irradiance), and
+    the warning says both; without shadow passes nothing goes negative."""
+    import warnings
+
+    from aobake.methods.bunnell.light import run_light
+
+    surface = load_mesh(CORNELL)
+    shading = read_shading(CORNELL, surface)
+    open_ = disk_light(surface, shading, shadow_passes=0)
+    assert open_.negative == 0 and open_.clipped == 0.0
+    one = disk_light(surface, shading, bounces=1)
+    assert one.negative > 0 and 0 < one.clipped < 0.05 * one.irradiance.sum()
+    direct_only = disk_light(surface, shading, bounces=0)
+    assert direct_only.negative == 0 and direct_only.clipped == 0.0  # the aimed passes never go negative
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        r = run_light(surface, shading, BunnellOptions())
+    assert r.negative == one.negative and r.clipped == one.clipped
+    (w,) = [str(c.message) for c in caught if "below zero" in str(c.message)]
+    share = one.clipped / one.irradiance.sum()
+    assert f"{one.negative:,} of {surface.n_vertices:,} vertices" in w and f"added {share:.2%}" in w

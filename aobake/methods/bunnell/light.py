@@ -118,9 +118,12 @@ def run_light(
     if ground is not None and indirect and options.bounces > 0:
         warnings.warn(f"{surface.source}: --method bunnell does not bounce light off the --ground plane (it occludes)", stacklevel=2)
     if result.negative:
+        total = float(result.irradiance.sum())
+        share = result.clipped / total if total > 0 else 0.0
         warnings.warn(
-            f"{surface.source}: the disk method's shadow passes took {result.negative} vertices' light below zero; "
-            "they were set to 0 (--method embree traces it)",
+            f"{surface.source}: the disk method's shadow passes took {result.negative:,} of {surface.n_vertices:,} "
+            f"vertices' light below zero; set to 0, which added {share:.2%} to the irradiance "
+            "(--method embree traces it)",
             stacklevel=2,
         )
     return result
@@ -287,10 +290,12 @@ class LitScene:
         bouncing = bounces > 0 and shading.reflects
         key = _area_key(lights, st.light_disks)
         negative = np.zeros(n, dtype=bool)
+        clipped = 0.0
         if key == self._area_key:  # the same area lights and emitters: their light is kept
-            lit, low = self._area
+            lit, low, clip = self._area
             direct = direct + lit
             negative |= low
+            clipped += clip
             progress.advance(1 + st.shadow_passes)
         else:
             emitters = emitter_disks(elements, shading, lights, st.light_disks)
@@ -299,15 +304,16 @@ class LitScene:
                 if st.aimed:
                     patches = _merged(emitter_disks(elements, shading, lights, LIGHT_PATCHES), LIGHT_PATCHES)
                     emitting = _emitting_vertices(self.surface, shading)
-                    lit, low = _aimed(elements, emitters, patches, st.shadow_passes, progress, emitting, st.faces_occlude, trees)
+                    lit, low, clip = _aimed(elements, emitters, patches, st.shadow_passes, progress, emitting, st.faces_occlude, trees)
                 else:
-                    lit, low = _shadowed(elements, emitters, None, st.shadow_passes, progress, st.faces_occlude, trees)
+                    lit, low, clip = _shadowed(elements, emitters, None, st.shadow_passes, progress, st.faces_occlude, trees)
             else:
-                lit, low = np.zeros((n, 3)), np.zeros(n, dtype=bool)
+                lit, low, clip = np.zeros((n, 3)), np.zeros(n, dtype=bool), 0.0
                 progress.advance(1 + st.shadow_passes)
-            self._area_key, self._area = key, (lit, low)
+            self._area_key, self._area = key, (lit, low, clip)
             direct = direct + lit
             negative |= low
+            clipped += clip
 
         indirect = np.zeros((n, 3))
         albedo = np.asarray(shading.vertex_albedo, dtype=np.float64)
@@ -316,10 +322,11 @@ class LitScene:
             radiance = albedo * last / math.pi
             if not np.any(radiance > 0):
                 break
-            last, low = _shadowed(elements, None, radiance, st.shadow_passes, progress, st.faces_occlude,
-                                  self._trees_for(bouncing))  # fmt: skip
+            last, low, clip = _shadowed(elements, None, radiance, st.shadow_passes, progress, st.faces_occlude,
+                                        self._trees_for(bouncing))  # fmt: skip
             indirect += last
             negative |= low
+            clipped += clip
         progress.finish()
         for name, arr in (("direct", direct), ("indirect", indirect)):
             if not np.isfinite(arr).all() or arr.min(initial=0.0) < 0:
@@ -335,6 +342,7 @@ class LitScene:
             seconds=time.perf_counter() - t0,
             contacts=contacts,
             negative=int(np.count_nonzero(negative)),
+            clipped=clipped,
         )
 
     def _trees_for(self, needed: bool) -> _Trees | None:
@@ -443,7 +451,7 @@ def _shadowed(
     """Irradiance at the vertices (front side) from ``emitters`` (or, ``radiance`` (n, 3):
     the vertices' own disks reflecting), shadowed by the triangles (``faces_occlude``;
     else the vertex disks, as published) in ``passes`` passes; and a bool mask of the
-    vertices it took below zero (set to 0).
+    vertices it took below zero (set to 0), and the negative parts' summed magnitude.
 
     Pass 0 distributes the light unshadowed to both sides of every vertex. Pass k
     subtracts, at each receiver, ``G E_{k-1}`` of every vertex disk (two-sided: an
@@ -519,7 +527,7 @@ def _shadowed(
             e_b = first_b - _gather(back_p, back_n, centres, normals, areas, weight, own)
             progress.advance(1)
     low = np.any(e_f < 0.0, axis=1) if n else np.zeros(0, dtype=bool)
-    return np.maximum(e_f, 0.0), low
+    return np.maximum(e_f, 0.0), low, float(-np.minimum(e_f, 0.0).sum())
 
 
 def _emitting(emitters: EmitterDisks) -> tuple:
@@ -596,7 +604,8 @@ def _aimed(
     faces_occlude: bool = True, trees: _Trees | None = None,
 ) -> tuple:  # fmt: skip
     """Irradiance at the vertices (front side) from ``emitters``, shadowed by the vertex
-    disks in ``passes`` passes aimed at the lights; and the vertices taken below zero.
+    disks in ``passes`` passes aimed at the lights; the vertices taken below zero and the
+    negative parts' summed magnitude.
 
     Pass 0 distributes each light's disks unshadowed, U, to both sides of every vertex.
     Pass k subtracts at each receiver, for every vertex disk whose line from the
@@ -658,7 +667,7 @@ def _aimed(
             lit[side] = first[side] * (1.0 - blocked)[:, :, None]
         progress.advance(1)
     low = np.any(lit[0] < 0.0, axis=(1, 2)) if n else np.zeros(0, dtype=bool)
-    return np.maximum(lit[0], 0.0).sum(axis=1), low
+    return np.maximum(lit[0], 0.0).sum(axis=1), low, float(-np.minimum(lit[0], 0.0).sum())
 
 
 def emitter_disks(elements: DiskElements, shading: Shading, lights=(), light_disks: int = LIGHT_DISKS) -> EmitterDisks:
