@@ -3,7 +3,7 @@
 its RectLight and as an emissive quad, for each shadowing variant, and the time of each
 beside the reference method at its defaults.
 
-    PYTHONPATH=. python bench/bench_bunnell_light.py [--ref-samples 4096] [--ref-paths 16384]
+    PYTHONPATH=. python bench/bench_bunnell_light.py [--ref-samples 4096] [--ref-paths 16384] [--near 0,4]
 
 Goal: relative RMSE <= 0.08 at the defaults (aimed, two shadow passes, one bounce).
 "published": every shadow pass as the GPU Gems 2 chapter's (isotropic), the vertex disks
@@ -22,6 +22,7 @@ goal of issue 16: <= 0.2 s a call on 100k vertices). docs/bunnell-light.md recor
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import resource
 import subprocess
@@ -46,6 +47,7 @@ def main():
     parser.add_argument("--ref-paths", type=int, default=16384)
     parser.add_argument("--passes", default="0,1,2,3", help="shadow passes to measure")
     parser.add_argument("--disks", default="256", help="disks per area light to measure")
+    parser.add_argument("--near", default="0,4", help="the triangles' near-field reach (trees, faces occlude) to measure")
     parser.add_argument("--big", type=int, default=0, help="bake a lit scene of about N vertices instead")
     parser.add_argument("--big-light", default="rect", choices=("rect", "point"))
     parser.add_argument("--relight", type=int, default=0, help="time re-lighting a prepared scene of about N vertices")
@@ -75,17 +77,19 @@ def main():
         schemes = {"published": {"aimed": False, "faces_occlude": False}, "aimed, disks occlude": {"faces_occlude": False},
                    "aimed, faces occlude (brute force)": {"theta": None}, "aimed, faces occlude": {}}  # fmt: skip
         for what, knobs in schemes.items():
-            for disks in args.disks.split(","):
-                for passes in args.passes.split(","):
-                    if passes == "0" and knobs.get("aimed", True):
-                        continue  # no shadow pass: the same as published
-                    t = time.perf_counter()
-                    r = disk_light(surf, sh, BunnellOptions(), shadow_passes=int(passes), light_disks=int(disks), **knobs)
-                    dt = time.perf_counter() - t
-                    print(f"  bunnell {what}, {passes} shadow passes, {disks} disks/light: rel. RMSE "
-                          f"{rel_rmse(r.irradiance[:scored], e_ref):.4f} (direct {rel_rmse(r.direct[:scored], ref.direct[:scored]):.4f}, "
-                          f"indirect {rel_rmse(r.indirect[:scored], ref.indirect[:scored]):.4f}); "
-                          f"{r.negative} vertices set from negative to 0; {dt:.3f} s ({t_emb / dt:.2f}x embree's speed)")
+            nears = args.near.split(",") if what == "aimed, faces occlude" else [None]
+            for disks, passes, near in itertools.product(args.disks.split(","), args.passes.split(","), nears):
+                if passes == "0" and knobs.get("aimed", True):
+                    continue  # no shadow pass: the same as published
+                kw = dict(knobs) if near is None else {**knobs, "near": float(near)}
+                label = what if near is None else f"{what}, near {near}"
+                t = time.perf_counter()
+                r = disk_light(surf, sh, BunnellOptions(), shadow_passes=int(passes), light_disks=int(disks), **kw)
+                dt = time.perf_counter() - t
+                print(f"  bunnell {label}, {passes} shadow passes, {disks} disks/light: rel. RMSE "
+                      f"{rel_rmse(r.irradiance[:scored], e_ref):.4f} (direct {rel_rmse(r.direct[:scored], ref.direct[:scored]):.4f}, "
+                      f"indirect {rel_rmse(r.indirect[:scored], ref.indirect[:scored]):.4f}); "
+                      f"{r.negative} vertices set from negative to 0; {dt:.3f} s ({t_emb / dt:.2f}x embree's speed)")
 
 
 def lit_scene(n, kind):

@@ -70,3 +70,58 @@ def test_tree_gather_over_a_disk_set_is_the_brute_force_transfer():
         assert np.abs(got - want).max() < 1e-5 * want.max()
         approx = tree_gather(DiskTree(centres, normals, areas, 4.0), receivers, radiance, flip=flip, own=own)
         assert math.sqrt(((approx - want) ** 2).sum() / (want**2).sum()) < 0.02
+
+
+def _subdivided(tri, n):
+    """Centroids and areas of the n^2 congruent triangles that split triangle ``tri`` (3, 3)."""
+    a, b, c = tri
+    u, v = np.meshgrid(np.arange(n), np.arange(n), indexing="ij")
+    up = u + v < n
+    down = u + v < n - 1
+    bary = np.concatenate([np.column_stack([u[up] + 1 / 3, v[up] + 1 / 3]), np.column_stack([u[down] + 2 / 3, v[down] + 2 / 3])]) / n
+    centres = a + bary[:, :1] * (b - a) + bary[:, 1:] * (c - a)
+    area = 0.5 * np.linalg.norm(np.cross(b - a, c - a)) / n**2
+    return centres, np.full(len(centres), area)
+
+
+def test_triangle_near_field_is_the_finely_subdivided_triangle():
+    """Receivers close to three large triangles (a square and a slanted one, both facings,
+    some across a receiver's tangent plane, some in a triangle's plane): the tree gather
+    with the near field (``DiskTree.triangle_cells``) equals the disk transfer over each
+    triangle split into 96^2 small ones within 0.5% relative RMSE; without it (triangles as
+    disks) it misses by more than 10%."""
+    positions = np.array([[0.0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [1.2, 0, 0.2], [1.2, 1, 0.2], [1.6, 0.5, 0.9]])
+    faces = np.array([[0, 1, 2], [0, 2, 3], [4, 5, 6]])
+    tris = positions[faces]
+    centres = tris.mean(axis=1)
+    m = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
+    areas = 0.5 * np.linalg.norm(m, axis=1)
+    normals = m / (2 * areas[:, None])
+    rng = np.random.default_rng(3)
+    n = 400
+    pts = np.column_stack([rng.uniform(-0.1, 1.4, n), rng.uniform(-0.1, 1.1, n), rng.uniform(-0.4, 0.4, n)])
+    pts[:20, 2] = 0.0  # in the square's plane: seen edge-on
+    nrm = rng.normal(size=(n, 3))
+    nrm /= np.linalg.norm(nrm, axis=1)[:, None]
+    plane_distance = np.abs(np.einsum("tk,ntk->nt", normals, pts[:, None, :] - tris[:, 0][None]))
+    keep = plane_distance.min(axis=1) > 0.05  # where 96^2 small disks stand for the triangles
+    keep[:20] = plane_distance[:20, 2] > 0.05
+    pts, nrm = pts[keep], nrm[keep]
+    radiance = np.array([[1.0, 2.0, 0.5], [0.3, 1.0, 1.0], [2.0, 0.2, 1.0]])
+    sub = [_subdivided(t, 96) for t in tris]
+    sub_c = np.concatenate([c for c, _ in sub])
+    sub_a = np.concatenate([a for _, a in sub])
+    sub_n = np.repeat(normals, [len(a) for _, a in sub], axis=0)
+    sub_l = np.repeat(radiance, [len(a) for _, a in sub], axis=0)
+    receivers = Receivers(pts, nrm)
+    tree = DiskTree(centres, normals, areas, 4.0, leaf_size=2, near=4.0)
+    tables = tree.triangle_cells(receivers, positions, faces)
+    assert min(len(t[1]) for t in tables) > 50  # both facings have near triangles
+    for flip, table in ((False, tables[0]), (True, tables[1])):
+        want = transfer(pts, nrm, sub_c, -sub_n if flip else sub_n, sub_a, sub_l)
+        got = tree_gather(tree, receivers, radiance, flip=flip, cells=table)
+        disks = tree_gather(tree, receivers, radiance, flip=flip)
+        rel = math.sqrt(((got - want) ** 2).sum() / (want**2).sum())
+        assert rel < 0.005
+        assert math.sqrt(((disks - want) ** 2).sum() / (want**2).sum()) > 0.1
+    assert np.all(np.isfinite(got))

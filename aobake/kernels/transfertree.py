@@ -27,10 +27,10 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from aobake.constants import COINCIDENT_REL, FASTMATH, MEASURE_COSINE
+from aobake.constants import COINCIDENT_REL, FASTMATH, MEASURE_COSINE, NEAR_PLANE_REL
 
 from .hierarchy import spread_factor
-from .polygon import cell_terms
+from .polygon import cell_terms, clipped_quad
 from .treewalk import B_RADIUS, behind
 from .treewalk import B_X as B_CX
 from .treewalk import B_Y as B_CY
@@ -416,3 +416,94 @@ def near_cells(points, normals, positions, corner_start, corners, near, skip, st
             node = skip[node]
         if not fill:
             counts[i] = found
+
+
+@njit(cache=True, error_model="numpy", parallel=True)
+def triangle_cells(points, normals, positions, faces, near, skip, start, stop, node_reach, node_centre, e_pos, e_area,
+                   e_face, counts, cell_start, cell_col, cell_val, fill):  # fmt: skip
+    """The near field of occluding triangles, two calls as :func:`near_cells`, one table per
+    side (index s: 0 the triangles whose front faces the receiver, 1 their back): receiver
+    i's triangles t (tree positions; centroid ``e_pos[t]``, area ``e_area[t]``, row
+    ``e_face[t]`` of ``faces``) with ``r^2 < near A_t``, and ``pi F_t``, F_t the triangle's
+    exact form factor clipped to i's tangent plane (``polygon.clipped_quad``): with them a
+    gather of the triangles as disks (``flip`` for the backs) takes the polygon where the
+    disk is poor. A triangle whose plane passes within NEAR_PLANE_REL edge lengths of the
+    receiver (its own, or one it lies on) is listed on both sides with 0: seen edge-on.
+    Receivers without a normal get none. ``counts`` (2, n), ``cell_start`` (2, n + 1),
+    ``cell_col`` and ``cell_val``: a tuple of two arrays each (one per side)."""
+    m = skip.shape[0]
+    col_f, col_b = cell_col
+    val_f, val_b = cell_val
+    for i in prange(points.shape[0]):
+        nx = normals[i, 0]
+        ny = normals[i, 1]
+        nz = normals[i, 2]
+        if nx == 0.0 and ny == 0.0 and nz == 0.0:
+            if not fill:
+                counts[0, i] = 0
+                counts[1, i] = 0
+            continue
+        px = points[i, 0]
+        py = points[i, 1]
+        pz = points[i, 2]
+        quad = np.empty((4, 3))
+        found_f = 0
+        found_b = 0
+        e_f = cell_start[0, i] if fill else 0
+        e_b = cell_start[1, i] if fill else 0
+        node = 0
+        while node < m:
+            dx = node_centre[node, 0] - px
+            dy = node_centre[node, 1] - py
+            dz = node_centre[node, 2] - pz
+            if dx * dx + dy * dy + dz * dz >= node_reach[node] * node_reach[node]:
+                node = skip[node]
+                continue
+            if skip[node] != node + 1:
+                node += 1
+                continue
+            for t in range(start[node], stop[node]):
+                ex = e_pos[t, 0] - px
+                ey = e_pos[t, 1] - py
+                ez = e_pos[t, 2] - pz
+                if ex * ex + ey * ey + ez * ez >= near * e_area[t]:
+                    continue
+                f = e_face[t]
+                a = faces[f, 0]
+                b = faces[f, 1]
+                c = faces[f, 2]
+                e1x = positions[b, 0] - positions[a, 0]
+                e1y = positions[b, 1] - positions[a, 1]
+                e1z = positions[b, 2] - positions[a, 2]
+                e2x = positions[c, 0] - positions[a, 0]
+                e2y = positions[c, 1] - positions[a, 1]
+                e2z = positions[c, 2] - positions[a, 2]
+                mx = e1y * e2z - e1z * e2y
+                my = e1z * e2x - e1x * e2z
+                mz = e1x * e2y - e1y * e2x
+                h = mx * (px - positions[a, 0]) + my * (py - positions[a, 1]) + mz * (pz - positions[a, 2])
+                m2 = mx * mx + my * my + mz * mz
+                edge_on = not h * h > NEAR_PLANE_REL * NEAR_PLANE_REL * m2 * np.sqrt(m2)
+                if fill:
+                    value = 0.0
+                    if not edge_on:
+                        for k in range(4):
+                            v = faces[f, min(k, 2)]
+                            quad[k, 0] = positions[v, 0]
+                            quad[k, 1] = positions[v, 1]
+                            quad[k, 2] = positions[v, 2]
+                        value = np.pi * clipped_quad(px, py, pz, nx, ny, nz, quad, MEASURE_COSINE)
+                    if edge_on or h > 0.0:
+                        col_f[e_f] = t
+                        val_f[e_f] = value
+                        e_f += 1
+                    if edge_on or h < 0.0:
+                        col_b[e_b] = t
+                        val_b[e_b] = value
+                        e_b += 1
+                found_f += edge_on or h > 0.0
+                found_b += edge_on or h < 0.0
+            node = skip[node]
+        if not fill:
+            counts[0, i] = found_f
+            counts[1, i] = found_b

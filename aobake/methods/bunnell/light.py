@@ -143,6 +143,7 @@ def disk_light(
     aimed_theta: float = AIMED_THETA,
     aimed_edge: float = AIMED_EDGE,
     share: bool = True,
+    near: float | None = None,
     progress: Progress | None = None,
     ground: Ground | None = None,
 ) -> LightResult:
@@ -178,6 +179,12 @@ def disk_light(
         With ``theta`` not None: the aimed passes that only weight the next one are
         evaluated at one vertex per leaf of the vertex tree and shared with the leaf's
         vertices of like normal (as the AO's later passes); False: at every vertex.
+    near : float >= 0, optional
+        With ``theta`` not None, at full-resolution receivers: a vertex disk (the bounce)
+        or a triangle (the shadow subtraction, ``faces_occlude``) within ``sqrt(near A)``
+        counts with the exact form factor of its polygon clipped to the receiver's tangent
+        plane instead of as a disk, as the AO's near field; 0: disks only. Default:
+        ``options.near`` (``--near``, 4).
     ground : aobake.ground.Ground, optional
         Occludes the shadow rays and the dome; its reflected light is not modelled.
 
@@ -190,7 +197,7 @@ def disk_light(
     t0 = time.perf_counter()
     scene = prepare_light(surface, shading, options, shadow_passes=shadow_passes, light_disks=light_disks, aimed=aimed,
                           faces_occlude=faces_occlude, theta=theta, aimed_theta=aimed_theta, aimed_edge=aimed_edge,
-                          share=share, ground=ground)  # fmt: skip
+                          share=share, near=near, ground=ground)  # fmt: skip
     result = scene.light(bounces=bounces, progress=progress)
     return replace(result, seconds=time.perf_counter() - t0)
 
@@ -208,6 +215,7 @@ def prepare_light(
     aimed_theta: float = AIMED_THETA,
     aimed_edge: float = AIMED_EDGE,
     share: bool = True,
+    near: float | None = None,
     ground: Ground | None = None,
 ) -> LitScene:
     """``surface`` and ``shading`` prepared for :meth:`LitScene.light`, which lights it
@@ -225,7 +233,10 @@ def prepare_light(
         )
     if theta is None and n > BRUTE_MAX_VERTICES:
         raise ValueError(f"theta=None (brute force) takes at most {BRUTE_MAX_VERTICES:,} vertices, got {n:,}")
-    settings = _Settings(shadow_passes, light_disks, aimed, faces_occlude, theta, (aimed_theta, aimed_edge), share)
+    near = float(options.near if near is None else near)
+    if not (near >= 0.0 and math.isfinite(near)):
+        raise ValueError(f"near must be finite and >= 0, got {near!r}")
+    settings = _Settings(shadow_passes, light_disks, aimed, faces_occlude, theta, (aimed_theta, aimed_edge), share, near)
     with numba_threads(mesh_threads(options.threads, n)):
         return LitScene(surface, shading, options, settings, ground)
 
@@ -241,6 +252,7 @@ class _Settings:
     theta: float | None
     aimed_tree: tuple  # (aimed_theta, aimed_edge)
     share: bool
+    near: float
 
 
 class LitScene:
@@ -351,7 +363,7 @@ class LitScene:
         if st.theta is None or not needed:
             return None
         if self._trees is None:
-            self._trees = _Trees(self.elements, st.theta, st.aimed_tree, st.faces_occlude, st.share)
+            self._trees = _Trees(self.elements, st.theta, st.aimed_tree, st.faces_occlude, st.share, st.near)
         return self._trees
 
     def _dome(self, lights):
@@ -409,12 +421,16 @@ class _Trees:
     """The lit passes' trees and receivers of one scene (built once, used by every pass):
     both sides of every vertex as receivers, the vertex disks, the occluding triangles."""
 
-    def __init__(self, elements: DiskElements, theta: float, aimed: tuple, faces_occlude: bool, share: bool = True):
+    def __init__(self, elements: DiskElements, theta: float, aimed: tuple, faces_occlude: bool, share: bool = True,
+                 near: float = 0.0):  # fmt: skip
         idx = elements.emitter_index
+        self.positions = elements.positions
+        self._cells = {}
         front_p, front_n, back_p, back_n = _sides(elements)
         self.theta, self.aimed = theta, aimed  # (theta, edge) of the aimed pass's tree
         self.sides = (Receivers(front_p, front_n), Receivers(back_p, back_n))
-        self.vertex = DiskTree(elements.positions[idx], elements.normals[idx], elements.areas[idx], theta)
+        self.elements = elements
+        self.vertex = DiskTree(elements.positions[idx], elements.normals[idx], elements.areas[idx], theta, near=near)
         self.own = np.full(elements.n_vertices, -1, dtype=np.int64)  # each vertex's own disk
         self.own[idx] = np.arange(idx.shape[0])
         # the passes that only weight the next one are evaluated at one vertex per leaf of
@@ -432,10 +448,33 @@ class _Trees:
             self.rep_sides, self.rep_own = self.sides, self.own
         if faces_occlude:
             self.faces, occ = _face_occluders(elements)
-            self.occluders = DiskTree(occ[:, :3], occ[:, 3:6], occ[:, 6], theta)
+            self.occluders = DiskTree(occ[:, :3], occ[:, 3:6], occ[:, 6], theta, near=near)
             self.occ_own = np.full(len(self.faces), -1, dtype=np.int64)
         else:
             self.faces, self.occluders, self.occ_own = None, self.vertex, idx
+
+    def vertex_cells(self, receivers: Receivers):
+        """The vertex disks' near field at ``receivers`` (their barycentric cells:
+        ``DiskTree.vertex_cells``, made on first use); None without one, and at the
+        representatives (it changes nothing measurable there, docs/bunnell-light.md)."""
+        if self.vertex.size == 0 or self.vertex.near <= 0.0 or receivers.n != self.elements.n_vertices:
+            return None
+        key = (id(receivers), 0)
+        if key not in self._cells:
+            self._cells[key] = self.vertex.vertex_cells(receivers, self.elements, self.elements.emitter_index)
+        return self._cells[key]
+
+    def cells(self, receivers: Receivers, facing: int):
+        """The triangles' near field at ``receivers`` for the side ``facing`` (1: front, -1:
+        back) that emits (``DiskTree.triangle_cells``, made on first use); None without
+        one, and at the representatives (measured: the near field there makes the box's
+        bounce worse, docs/bunnell-light.md)."""
+        if self.faces is None or self.occluders.near <= 0.0 or receivers.n != self.elements.n_vertices:
+            return None
+        key = (id(receivers), 1)
+        if key not in self._cells:
+            self._cells[key] = self.occluders.triangle_cells(receivers, self.positions, self.faces)
+        return self._cells[key][0 if facing > 0 else 1]
 
 
 def _gather(points, normals, centres, disk_normals, areas, radiance, own) -> np.ndarray:
@@ -467,11 +506,11 @@ def _shadowed(
         # and the front before the last pass) at the representatives when shared
         shared = trees.shared and passes > 0
         first_f = _gather(front_p, front_n, *_emitting(emitters)) if emitters is not None else tree_gather(
-            trees.vertex, trees.sides[0], radiance[idx], own=trees.own)
+            trees.vertex, trees.sides[0], radiance[idx], own=trees.own, cells=trees.vertex_cells(trees.sides[0]))
         rep_f = first_f[trees.reps] if shared else first_f
         back = trees.rep_sides[1] if shared else trees.sides[1]
         rep_b = _gather(back.points, back.normals, *_emitting(emitters)) if emitters is not None else tree_gather(
-            trees.vertex, back, radiance[idx], own=trees.rep_own if shared else trees.own)
+            trees.vertex, back, radiance[idx], own=trees.rep_own if shared else trees.own, cells=trees.vertex_cells(back))
         progress.advance(1)
         e_f, e_b = rep_f, rep_b
         for k in range(passes):
@@ -487,13 +526,14 @@ def _shadowed(
                 own = trees.own
             last = k == passes - 1
             if last:  # the front at every vertex is the output
-                e_f = first_f - tree_gather(trees.occluders, trees.sides[0], w_back, own=own) - tree_gather(
-                    trees.occluders, trees.sides[0], w_front, flip=True, own=own)
+                front = trees.sides[0]
+                e_f = first_f - tree_gather(trees.occluders, front, w_back, own=own, cells=trees.cells(front, 1)) - tree_gather(
+                    trees.occluders, front, w_front, flip=True, own=own, cells=trees.cells(front, -1))
             else:
                 sides = trees.rep_sides if shared else trees.sides
                 own_s = None if own is None else (trees.rep_own if shared else own)
-                e_f, e_b = (first - tree_gather(trees.occluders, side, w_back, own=own_s)
-                            - tree_gather(trees.occluders, side, w_front, flip=True, own=own_s)
+                e_f, e_b = (first - tree_gather(trees.occluders, side, w_back, own=own_s, cells=trees.cells(side, 1))
+                            - tree_gather(trees.occluders, side, w_front, flip=True, own=own_s, cells=trees.cells(side, -1))
                             for first, side in zip((rep_f, rep_b), sides, strict=True))  # fmt: skip
             progress.advance(1)
         if passes == 0:

@@ -26,9 +26,11 @@ LIGHT_THETA = 4.0
 
 class DiskTree:
     """A cluster tree over ``k`` one-sided disks (centres, unit normals, areas > 0), the
-    opening distances of its nodes for ``theta``, and the disks in tree order."""
+    opening distances of its nodes for ``theta``, and the disks in tree order. ``near`` >
+    0: no node is used whole by a receiver that could be within ``sqrt(near A)`` of one of
+    its disks (those take a near field: :meth:`triangle_cells`)."""
 
-    def __init__(self, centres, normals, areas, theta: float, leaf_size: int = TRANSFER_LEAF_SIZE):
+    def __init__(self, centres, normals, areas, theta: float, leaf_size: int = TRANSFER_LEAF_SIZE, near: float = 0.0):
         centres = np.ascontiguousarray(centres, dtype=np.float64)
         normals = np.ascontiguousarray(normals, dtype=np.float64)
         areas = np.ascontiguousarray(areas, dtype=np.float64)
@@ -49,7 +51,51 @@ class DiskTree:
         coherence = np.empty(skip.shape[0])
         with np.errstate(invalid="ignore", divide="ignore"):
             _h.node_coherence(normals, areas, self.order, start, stop, coherence)
-        self.table = opening_table(g, coherence, self.theta)
+        self.near = float(near)
+        self.reach = (g[:, 3] + np.sqrt(self.near * g[:, 5])) * (1.0 + 1e-9) if self.near > 0 else None
+        self.table = opening_table(g, coherence, self.theta, self.reach)
+
+    def vertex_cells(self, receivers: Receivers, elements, vertex) -> tuple:
+        """``(start, col, val)``: the near field of this tree's disks as the barycentric
+        cells of the vertices ``vertex`` (k,) they stand for, of ``elements``, at receivers
+        one per vertex (receiver i is vertex i: its own cell is left out;
+        ``transfertree.near_cells``, the transfer's near field)."""
+        n = receivers.n
+        start = np.zeros(n + 1, dtype=np.int64)
+        if self.size == 0 or self.near <= 0.0:
+            return start, np.zeros(0, dtype=np.int64), np.zeros(0)
+        counts = np.zeros(n, dtype=np.int64)
+        args = (receivers.points, receivers.normals, elements.positions, elements.corner_start, elements.corners,
+                self.near, self.skip, self.start, self.stop, self.reach, np.ascontiguousarray(self.geometry[:, :3]),
+                self.e_pos, self.e_area, np.ascontiguousarray(np.asarray(vertex, dtype=np.int64)[self.order]))  # fmt: skip
+        _kt2.near_cells(*args, counts, start, np.zeros(0, dtype=np.int64), np.zeros(0), False)
+        np.cumsum(counts, out=start[1:])
+        col = np.empty(start[-1], dtype=np.int64)
+        val = np.empty(start[-1])
+        _kt2.near_cells(*args, counts, start, col, val, True)
+        return start, col, val
+
+    def triangle_cells(self, receivers: Receivers, positions, faces) -> tuple:
+        """Two ``(start, col, val)`` tables: the near field of this tree's disks as the
+        triangles ``faces`` (rows in the order the disks were given) at ``receivers``, of
+        the triangles whose front faces each receiver, then of those whose back does
+        (``transfertree.triangle_cells``)."""
+        n = receivers.n
+        if self.size == 0 or self.near <= 0.0:
+            empty = (np.zeros(n + 1, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros(0))
+            return empty, empty
+        counts = np.zeros((2, n), dtype=np.int64)
+        start = np.zeros((2, n + 1), dtype=np.int64)
+        args = (receivers.points, receivers.normals, np.ascontiguousarray(positions, dtype=np.float64),
+                np.ascontiguousarray(faces, dtype=np.int64), self.near, self.skip, self.start, self.stop, self.reach,
+                np.ascontiguousarray(self.geometry[:, :3]), self.e_pos, self.e_area, self.order)  # fmt: skip
+        none = (np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64))
+        _kt2.triangle_cells(*args, counts, start, none, (np.zeros(0), np.zeros(0)), False)
+        np.cumsum(counts, axis=1, out=start[:, 1:])
+        cols = (np.empty(start[0, -1], dtype=np.int64), np.empty(start[1, -1], dtype=np.int64))
+        vals = (np.empty(start[0, -1]), np.empty(start[1, -1]))
+        _kt2.triangle_cells(*args, counts, start, cols, vals, True)
+        return (np.ascontiguousarray(start[0]), cols[0], vals[0]), (np.ascontiguousarray(start[1]), cols[1], vals[1])
 
     @property
     def n_nodes(self) -> int:
@@ -67,11 +113,12 @@ class Receivers:
         self._no_cells = (np.zeros(self.n + 1, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros(0))
 
 
-def tree_gather(tree: DiskTree, receivers: Receivers, radiance, *, flip: bool = False, own=None) -> np.ndarray:
+def tree_gather(tree: DiskTree, receivers: Receivers, radiance, *, flip: bool = False, own=None, cells=None) -> np.ndarray:
     """(n, 3) irradiance at ``receivers`` from ``tree``'s disks sending ``radiance`` (k, 3)
     (disk order): the transfer's disk terms through the tree. ``flip``: the disks face the
     other way (their back sides emit). ``own`` (n,) int64: the disk each receiver does not
-    take (-1: none)."""
+    take (-1: none). ``cells``: a near field (:meth:`DiskTree.triangle_cells` of the side
+    that emits) whose values replace those disks' terms."""
     out = np.zeros((receivers.n, 3))
     if tree.size == 0 or receivers.n == 0:
         return out
@@ -88,7 +135,7 @@ def tree_gather(tree: DiskTree, receivers: Receivers, radiance, *, flip: bool = 
     _kt2.gather_tree(
         receivers.points, receivers.normals, receivers.order, receivers.bucket_start, receivers.bounds,
         min(TRANSFER_CHUNKS, n_buckets), tree.skip, tree.start, tree.stop, tree.table, light,
-        tree.e_pos, np.ascontiguousarray(e_nrm), tree.e_area, radiance, own_pos, *receivers._no_cells, out,
+        tree.e_pos, np.ascontiguousarray(e_nrm), tree.e_area, radiance, own_pos, *(cells or receivers._no_cells), out,
     )  # fmt: skip
     return out
 
