@@ -4,6 +4,7 @@ transfer tree over any disk set."""
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import numpy as np
@@ -28,7 +29,8 @@ def test_aimed_tree_on_a_plate_across_a_patch_is_the_brute_force_kernel(x0):
     """A receiver under a patch (area 0.04 at height 2) with a plate at height 1 across part
     of it: the tree at theta 1, 4 and inf gives the brute-force kernel's blocked share with
     ``edge`` 0 (clusters are used whole only away from the patch cap's edge, where they add
-    exactly), within 0.02 at the default edge."""
+    exactly), within 0.02 at the default edge. With a reach (``--max-distance``) only the
+    occluders within it block: the kernel on those alone, and the tree alike."""
     centres, normals, areas = _plate(x0)
     occ = np.ascontiguousarray(np.column_stack([centres, normals, areas]))
     patch = np.array([[0.0, 0.0, 2.0, 0.0, 0.0, -1.0, 0.04, 1.0, 1.0, 1.0, 0.0]])
@@ -36,7 +38,7 @@ def test_aimed_tree_on_a_plate_across_a_patch_is_the_brute_force_kernel(x0):
     own = np.full(len(areas), -1, dtype=np.int64)
     vis = np.ones((len(areas), 2, 1))
     want = np.empty((1, 1))
-    _kls.aimed_shadow(pts, nrm, occ, own, vis, patch, want)
+    _kls.aimed_shadow(pts, nrm, occ, own, vis, patch, math.inf, want)
     assert 0.05 < want[0, 0] < 0.95  # the plate's edge crosses the patch
     tree = DiskTree(centres, normals, areas, 4.0)
     for theta in (1.0, 4.0, math.inf):
@@ -45,12 +47,26 @@ def test_aimed_tree_on_a_plate_across_a_patch_is_the_brute_force_kernel(x0):
         assert got[0, 0] == pytest.approx(want[0, 0], rel=1e-9)
         aimed_shadow_tree(pts, nrm, tree, own, vis, patch, got, theta)  # small clusters across the edge whole
         assert got[0, 0] == pytest.approx(want[0, 0], abs=0.02)
+    # a reach of sqrt(1 + 0.04^2) from a receiver 1 below the plate: only its disks within it block
+    reach = math.sqrt(1 + 0.04**2)
+    near = np.empty((1, 1))
+    _kls.aimed_shadow(pts, nrm, occ, own, vis, patch, reach**2, near)
+    within = np.linalg.norm(centres, axis=1) <= reach
+    assert 0 < within.sum() < len(areas) and 0 < near[0, 0] < want[0, 0]
+    only = np.empty((1, 1))
+    _kls.aimed_shadow(pts, nrm, np.ascontiguousarray(occ[within]), own[within], vis[within], patch, math.inf, only)
+    assert near[0, 0] == pytest.approx(only[0, 0], rel=1e-12)
+    for theta in (1.0, 4.0, math.inf):
+        got = np.empty((1, 1))
+        aimed_shadow_tree(pts, nrm, tree, own, vis, patch, got, theta, edge=0.0, reach=reach)
+        assert got[0, 0] == pytest.approx(near[0, 0], rel=1e-9)
 
 
 def test_tree_gather_over_a_disk_set_is_the_brute_force_transfer():
     """Random disks lighting random receivers (both facings, owned disks left out): the
     tree with every cluster opened equals ``transfer`` to float32 rounding; at theta 4
-    within 2% relative RMSE."""
+    within 2% relative RMSE; both with and without a reach, where ``transfer`` equals the
+    sum over each receiver's disks within it."""
     rng = np.random.default_rng(7)
     k, n = 400, 300
     centres = rng.uniform(-1, 1, (k, 3))
@@ -64,12 +80,21 @@ def test_tree_gather_over_a_disk_set_is_the_brute_force_transfer():
     own = np.where(np.arange(n) < 50, np.arange(n), -1)  # receiver i < 50 owns disk i
     own_of_disk = np.where(np.arange(k) < 50, np.arange(k), -1)
     receivers = Receivers(pts, nrm)
-    for flip in (False, True):
-        want = transfer(pts, nrm, centres, -normals if flip else normals, areas, radiance, own_of_disk)
-        got = tree_gather(DiskTree(centres, normals, areas, math.inf), receivers, radiance, flip=flip, own=own)
+    for flip, reach in itertools.product((False, True), (math.inf, 0.8)):
+        want = transfer(pts, nrm, centres, -normals if flip else normals, areas, radiance, own_of_disk, reach)
+        got = tree_gather(DiskTree(centres, normals, areas, math.inf), receivers, radiance, flip=flip, own=own, reach=reach)
         assert np.abs(got - want).max() < 1e-5 * want.max()
-        approx = tree_gather(DiskTree(centres, normals, areas, 4.0), receivers, radiance, flip=flip, own=own)
+        approx = tree_gather(DiskTree(centres, normals, areas, 4.0), receivers, radiance, flip=flip, own=own, reach=reach)
         assert math.sqrt(((approx - want) ** 2).sum() / (want**2).sum()) < 0.02
+    # a reach: only the disks within it, as a numpy sum over each receiver's near disks says
+    far = transfer(pts, nrm, centres, normals, areas, radiance, own_of_disk)
+    near = transfer(pts, nrm, centres, normals, areas, radiance, own_of_disk, 0.8)
+    d = np.linalg.norm(centres[None] - pts[:, None], axis=2)
+    for i in (0, 60, 299):
+        keep = (d[i] <= 0.8) & (own_of_disk != i)
+        one = transfer(pts[i : i + 1], nrm[i : i + 1], centres[keep], normals[keep], areas[keep], radiance[keep])
+        np.testing.assert_allclose(near[i], one[0], rtol=1e-12, atol=1e-15)
+    assert np.abs(far - near).max() > 0.1 * far.max()
 
 
 def _subdivided(tri, n):

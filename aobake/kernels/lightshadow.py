@@ -49,7 +49,7 @@ def _overlap(a, b, beta):
 
 
 @njit(cache=True, error_model="numpy", parallel=True)
-def aimed_shadow(points, normals, occ, own, vis, patches, out):
+def aimed_shadow(points, normals, occ, own, vis, patches, reach2, out):
     """``out[i, g]``: the fraction of group g's light that the occluders block at receiver
     i, ``sum_q W_q c_q min(1, C_q) / sum_q W_q c_q`` over the group's patches q facing
     the receiver (``W_q`` their caps' solid angle, ``c_q`` cos_r times the patch's summed
@@ -68,6 +68,9 @@ def aimed_shadow(points, normals, occ, own, vis, patches, out):
     vis : (k, 2, G) float64
         The fraction of group g's light reaching each side of each occluder.
     patches : (P, Q_SIZE) float64
+    reach2 : float
+        Occluders whose centre is farther than ``sqrt(reach2)`` block nothing (a max
+        distance, squared; inf: none).
     out : (n, G) float64
         Overwritten.
     """
@@ -133,7 +136,7 @@ def aimed_shadow(points, normals, occ, own, vis, patches, out):
                 continue
             if nx * dx + ny * dy + nz * dz <= 0.0:
                 continue
-            if r2 >= far2:
+            if r2 >= far2 or r2 > reach2:
                 continue
             r = math.sqrt(r2)
             ux, uy, uz = dx / r, dy / r, dz / r

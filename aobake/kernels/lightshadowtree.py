@@ -91,7 +91,7 @@ def _cover(cover, w_q, a_q, cos_q, sin_q, d2_q, ux_q, uy_q, uz_q, patches, r2, u
 
 
 @njit(cache=True, error_model="numpy", parallel=True)
-def aimed_shadow_tree(points, normals, skip, start, stop, nodes, occ, own, vis, patches, edge, out):
+def aimed_shadow_tree(points, normals, skip, start, stop, nodes, occ, own, vis, patches, edge, reach2, out):
     """``out[i, g]``: ``lightshadow.aimed_shadow``'s blocked fraction with the occluders
     in a tree (``occ``, ``own``, ``vis`` in tree order). Each receiver walks the tree: a
     node is skipped when every occluder in it would be (farther than every patch seen,
@@ -115,6 +115,9 @@ def aimed_shadow_tree(points, normals, skip, start, stop, nodes, occ, own, vis, 
     edge : float >= 0
         Nodes across a patch cap's edge are used whole when their angular radius is at
         most ``edge`` times the cap's (sines); 0: always opened.
+    reach2 : float
+        Occluders farther than ``sqrt(reach2)`` block nothing (as the brute-force kernel);
+        a node is skipped when all of it is beyond, used whole only when all of it is within.
     out : (n, G) float64
         Overwritten.
     """
@@ -185,15 +188,15 @@ def aimed_shadow_tree(points, normals, skip, start, stop, nodes, occ, own, vis, 
             d2 = dx * dx + dy * dy + dz * dz
             d = math.sqrt(d2)
             height = nx * dx + ny * dy + nz * dz
-            if height <= -b or d - b >= far or nodes[node, N_LIT] <= 0.0:
-                continue  # every centre behind the plane, or beyond every patch, or no light on any side
+            if height <= -b or d - b >= far or nodes[node, N_LIT] <= 0.0 or (d - b) * (d - b) > reach2 and d > b:
+                continue  # every centre behind the plane, beyond every patch or reach, or no light on any side
             if d > b:
                 # outside the cone by more than any of its occluders' caps: the angle to
                 # the axis >= spread + asin(b / d) + atan(b / (d - b)) (bounded above)
                 lim = spread + 0.5 * math.pi * b / d + b / (d - b)
                 if lim < math.pi and ax * dx + ay * dy + az * dz <= d * math.cos(lim) - REJECT_SLACK * d:
                     continue
-                if d2 >= nodes[node, N_OPEN_D2] and height >= b and (d + b) * (d + b) < near2 and not _straddles(
+                if d2 >= nodes[node, N_OPEN_D2] and height >= b and (d + b) * (d + b) < near2 and (d + b) * (d + b) <= reach2 and not _straddles(
                         cover, w_q, cos_q, sin_q, ux_q, uy_q, uz_q, dx / d, dy / d, dz / d, b / d, edge):
                     ux, uy, uz = dx / d, dy / d, dz / d
                     t = N_T
@@ -232,7 +235,7 @@ def aimed_shadow_tree(points, normals, skip, start, stop, nodes, occ, own, vis, 
                 dx, dy, dz = occ[j, O_C] - px, occ[j, O_C + 1] - py, occ[j, O_C + 2] - pz
                 r2 = dx * dx + dy * dy + dz * dz
                 area = occ[j, O_A]
-                if r2 <= COINCIDENT_REL * area or nx * dx + ny * dy + nz * dz <= 0.0 or r2 >= far2:
+                if r2 <= COINCIDENT_REL * area or nx * dx + ny * dy + nz * dz <= 0.0 or r2 >= far2 or r2 > reach2:
                     continue
                 r = math.sqrt(r2)
                 ux, uy, uz = dx / r, dy / r, dz / r

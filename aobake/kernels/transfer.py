@@ -17,7 +17,7 @@ from aobake.constants import COINCIDENT_REL
 
 
 @njit(cache=True, parallel=True)
-def gather(points, normals, centres, disk_normals, areas, radiance, own, out):
+def gather(points, normals, centres, disk_normals, areas, radiance, own, reach2, out):
     """``out[i] = sum_j pi L_j A_j cos_e cos_r / (pi r^2 + A_j)`` over every disk j.
 
     ``pi L A cos_e cos_r / (pi r^2 + A)`` is the irradiance a Lambertian disk of radiance
@@ -35,6 +35,8 @@ def gather(points, normals, centres, disk_normals, areas, radiance, own, out):
     radiance : (k, 3) float64
     own : (k,) int64
         The receiver each disk belongs to (-1: none).
+    reach2 : float
+        Disks farther than ``sqrt(reach2)`` are skipped (a max distance, squared; inf: none).
     out : (n, 3) float64
         Overwritten.
     """
@@ -55,7 +57,7 @@ def gather(points, normals, centres, disk_normals, areas, radiance, own, out):
                 dz = centres[j, 2] - pz
                 r2 = dx * dx + dy * dy + dz * dz
                 a = areas[j]
-                if r2 <= COINCIDENT_REL * a:
+                if r2 <= COINCIDENT_REL * a or r2 > reach2:
                     continue
                 cr = nx * dx + ny * dy + nz * dz
                 if cr <= 0.0:

@@ -119,11 +119,11 @@ F_X, F_Y, F_Z, F_P, F_W, F_T = 0, 1, 2, 3, 6, 15
 FAR_ROWS = 21
 
 @njit(cache=True, fastmath=FASTMATH, error_model="numpy", inline="always")
-def near_sums(buf, n_near, px, py, pz, nx, ny, nz):
+def near_sums(buf, n_near, px, py, pz, nx, ny, nz, reach2):
     """RGB sums of the exact disk terms of ``buf[:, :n_near]`` at a receiver (as
-    ``transfer.gather``: nothing from coincident disks or either side facing away), each
-    times its B_KEEP row (the caller sets 0 for the receiver's own disk and its near-field
-    cells)."""
+    ``transfer.gather``: nothing from coincident disks, disks farther than
+    ``sqrt(reach2)`` or either side facing away), each times its B_KEEP row (the caller
+    sets 0 for the receiver's own disk and its near-field cells)."""
     s0 = ZERO32
     s1 = ZERO32
     s2 = ZERO32
@@ -136,7 +136,7 @@ def near_sums(buf, n_near, px, py, pz, nx, ny, nz):
         cr = max(nx * dx + ny * dy + nz * dz, ZERO32)
         ce = max(-(buf[B_MX, t] * dx + buf[B_MY, t] * dy + buf[B_MZ, t] * dz), ZERO32)
         w = PI32 * a * ce * cr / (r2 * (PI32 * r2 + a))
-        w = w * buf[B_KEEP, t] if r2 > COINCIDENT32 * a else ZERO32
+        w = w * buf[B_KEEP, t] if r2 > COINCIDENT32 * a and r2 <= reach2 else ZERO32
         s0 += w * buf[B_L, t]
         s1 += w * buf[B_L + 1, t]
         s2 += w * buf[B_L + 2, t]
@@ -180,7 +180,7 @@ def far_sums(buf, n_far, px, py, pz, nx, ny, nz):
 
 @njit(cache=True, fastmath=FASTMATH, error_model="numpy", parallel=True)
 def gather_tree(points, normals, recv_order, bucket_start, bounds, n_chunks, skip, start, stop, geometry,
-                light, e_pos, e_nrm, e_area, e_rad, own_pos, cell_start, cell_col, cell_val, out):
+                light, e_pos, e_nrm, e_area, e_rad, own_pos, cell_start, cell_col, cell_val, reach, node_radius, out):
     """``out[i]``: the irradiance of :func:`aobake.kernels.transfer.gather` at every receiver,
     through the tree.
 
@@ -219,12 +219,20 @@ def gather_tree(points, normals, recv_order, bucket_start, bounds, n_chunks, ski
         The near field (:func:`near_cells`): receiver i's disks ``cell_col[cell_start[i]:
         cell_start[i + 1]]`` (tree positions) give ``cell_val`` times their radiance instead
         of their disk term.
+    reach : float > 0
+        Disks whose centre is farther than ``reach`` from a receiver give it nothing (a
+        max distance; inf: none). A node is skipped when all of it is beyond every
+        receiver of the bucket, used whole only when all of it is within reach of each.
+    node_radius : (m,) float64
+        Each node's bounding radius about its centre (read only with a finite ``reach``).
     out : (n, 3) float64
         Overwritten.
     """
     m = skip.shape[0]
     k = e_area.shape[0]
     nb = bucket_start.shape[0] - 1
+    capped = reach < np.inf
+    reach2 = np.float32(reach * reach) if capped else np.float32(np.inf)
     for chunk in prange(n_chunks):
         near_buf = np.empty((NEAR_ROWS, k), dtype=np.float32)
         near_t = np.empty(k, dtype=np.int64)
@@ -251,7 +259,13 @@ def gather_tree(points, normals, recv_order, bucket_start, bounds, n_chunks, ski
                 dz = geometry[node, G_Z] - bz
                 dist = np.sqrt(dx * dx + dy * dy + dz * dz)
                 dmin = dist - rb
-                if dmin > 0.0 and dmin * dmin >= geometry[node, G_OPEN_D2]:
+                whole = True
+                if capped:
+                    if dmin - node_radius[node] > reach:  # all of it beyond every receiver
+                        node = nxt
+                        continue
+                    whole = dist + rb + node_radius[node] <= reach
+                if whole and dmin > 0.0 and dmin * dmin >= geometry[node, G_OPEN_D2]:
                     if behind(bound, dx, dy, dz, dist):  # a zero term at every receiver
                         node = nxt
                         continue
@@ -270,8 +284,8 @@ def gather_tree(points, normals, recv_order, bucket_start, bounds, n_chunks, ski
                         ey = e_pos[t, 1] - by
                         ez = e_pos[t, 2] - bz
                         e = np.sqrt(ex * ex + ey * ey + ez * ez)
-                        if behind(bound, ex, ey, ez, e):
-                            continue  # behind every receiver's tangent plane
+                        if behind(bound, ex, ey, ez, e) or e - rb > reach:
+                            continue  # behind every receiver's tangent plane, or beyond its reach
                         if e_nrm[t, 0] * ex + e_nrm[t, 1] * ey + e_nrm[t, 2] * ez > rb + FACING_SLACK * (e + rb + 1.0):
                             continue  # faces away from every receiver of the bucket
                         near_buf[B_X, n_near] = ex
@@ -316,13 +330,19 @@ def gather_tree(points, normals, recv_order, bucket_start, bounds, n_chunks, ski
                     if q < n_near and near_t[q] == t:
                         near_buf[B_KEEP, q] = ZERO32
                 f0, f1, f2 = far_sums(far_buf, n_far, px, py, pz, nx, ny, nz)
-                n0, n1, n2 = near_sums(near_buf, n_near, px, py, pz, nx, ny, nz)
+                n0, n1, n2 = near_sums(near_buf, n_near, px, py, pz, nx, ny, nz, reach2)
                 c0 = 0.0
                 c1 = 0.0
                 c2 = 0.0
                 for e in range(cell_start[i], cell_start[i + 1]):
                     t = cell_col[e]
                     v = cell_val[e]
+                    if capped:
+                        ex = e_pos[t, 0] - points[i, 0]
+                        ey = e_pos[t, 1] - points[i, 1]
+                        ez = e_pos[t, 2] - points[i, 2]
+                        if ex * ex + ey * ey + ez * ez > reach * reach:
+                            v = 0.0
                     c0 += v * e_rad[t, 0]
                     c1 += v * e_rad[t, 1]
                     c2 += v * e_rad[t, 2]

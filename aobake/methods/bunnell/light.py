@@ -154,8 +154,10 @@ def disk_light(
     surface : Surface
     shading : Shading
     options : BunnellOptions, optional
-        ``bounces`` (overridden by ``bounces``), ``max_distance`` (caps the shadow rays
-        and the dome's AO), ``threads`` and the AO settings a dome uses.
+        ``bounces`` (overridden by ``bounces``), ``max_distance`` (geometry farther from a
+        receiver neither occludes nor reflects: the shadow rays, the dome's AO, the shadow
+        passes and the bounce; the lights themselves are not capped), ``threads`` and the
+        AO settings a dome uses.
     bounces : int, optional
     shadow_passes : int
         Passes after the distributing one (0 = unshadowed transfer).
@@ -267,6 +269,9 @@ class LitScene:
                  ground: Ground | None):  # fmt: skip
         self.surface, self.shading, self.options, self.settings, self.ground = surface, shading, options, settings, ground
         self.elements = build_elements(surface)
+        # --max-distance in the elements' normalised units: farther geometry neither
+        # reflects nor occludes, as the reference's capped rays
+        self.reach = math.inf if options.max_distance is None else float(options.max_distance) / self.elements.scale
         self._rays = _ShadowRays(surface, options, ground)
         self._trees: _Trees | None = None
         self._ao = None  # the dome's occlusion (cosine measure), once a shadowed dome asks
@@ -316,9 +321,11 @@ class LitScene:
                 if st.aimed:
                     patches = _merged(emitter_disks(elements, shading, lights, LIGHT_PATCHES), LIGHT_PATCHES)
                     emitting = _emitting_vertices(self.surface, shading)
-                    lit, low, clip = _aimed(elements, emitters, patches, st.shadow_passes, progress, emitting, st.faces_occlude, trees)
+                    lit, low, clip = _aimed(elements, emitters, patches, st.shadow_passes, progress, emitting, st.faces_occlude, trees,
+                                            self.reach)
                 else:
-                    lit, low, clip = _shadowed(elements, emitters, None, st.shadow_passes, progress, st.faces_occlude, trees)
+                    lit, low, clip = _shadowed(elements, emitters, None, st.shadow_passes, progress, st.faces_occlude, trees,
+                                               self.reach)
             else:
                 lit, low, clip = np.zeros((n, 3)), np.zeros(n, dtype=bool), 0.0
                 progress.advance(1 + st.shadow_passes)
@@ -335,7 +342,7 @@ class LitScene:
             if not np.any(radiance > 0):
                 break
             last, low, clip = _shadowed(elements, None, radiance, st.shadow_passes, progress, st.faces_occlude,
-                                        self._trees_for(bouncing))  # fmt: skip
+                                        self._trees_for(bouncing), self.reach)  # fmt: skip
             indirect += last
             negative |= low
             clipped += clip
@@ -477,15 +484,15 @@ class _Trees:
         return self._cells[key][0 if facing > 0 else 1]
 
 
-def _gather(points, normals, centres, disk_normals, areas, radiance, own) -> np.ndarray:
+def _gather(points, normals, centres, disk_normals, areas, radiance, own, reach=math.inf) -> np.ndarray:
     """(n, 3) irradiance at the receivers from one-sided disks, every pair summed (the
     brute-force :func:`~aobake.methods.bunnell.transfer.transfer`; the step a tree replaces)."""
-    return transfer(points, normals, centres, disk_normals, areas, radiance, own)
+    return transfer(points, normals, centres, disk_normals, areas, radiance, own, reach)
 
 
 def _shadowed(
     elements: DiskElements, emitters: EmitterDisks | None, radiance, passes: int, progress, faces_occlude: bool = True,
-    trees: _Trees | None = None,
+    trees: _Trees | None = None, reach: float = math.inf,
 ) -> tuple:  # fmt: skip
     """Irradiance at the vertices (front side) from ``emitters`` (or, ``radiance`` (n, 3):
     the vertices' own disks reflecting), shadowed by the triangles (``faces_occlude``;
@@ -497,7 +504,9 @@ def _shadowed(
     occluder blocks from either side), ``E_{k-1}`` the light pass k - 1 left on the disk's
     side facing away from the receiver (what the disk stands in front of), ``G`` the
     transfer's ``A |cos_e| cos_r / (pi r^2 + A)``. With ``trees`` the vertex disks' light
-    and the subtraction go through them (``lighttree.tree_gather``); else every pair."""
+    and the subtraction go through them (``lighttree.tree_gather``); else every pair.
+    ``reach``: vertex disks and occluders farther from a receiver give and block nothing
+    (``--max-distance``, normalised units); the emitters (lights) are not capped."""
     idx = elements.emitter_index
     n = elements.n_vertices
     front_p, front_n, back_p, back_n = _sides(elements)
@@ -506,11 +515,12 @@ def _shadowed(
         # and the front before the last pass) at the representatives when shared
         shared = trees.shared and passes > 0
         first_f = _gather(front_p, front_n, *_emitting(emitters)) if emitters is not None else tree_gather(
-            trees.vertex, trees.sides[0], radiance[idx], own=trees.own, cells=trees.vertex_cells(trees.sides[0]))
+            trees.vertex, trees.sides[0], radiance[idx], own=trees.own, cells=trees.vertex_cells(trees.sides[0]), reach=reach)
         rep_f = first_f[trees.reps] if shared else first_f
         back = trees.rep_sides[1] if shared else trees.sides[1]
         rep_b = _gather(back.points, back.normals, *_emitting(emitters)) if emitters is not None else tree_gather(
-            trees.vertex, back, radiance[idx], own=trees.rep_own if shared else trees.own, cells=trees.vertex_cells(back))
+            trees.vertex, back, radiance[idx], own=trees.rep_own if shared else trees.own, cells=trees.vertex_cells(back),
+            reach=reach)
         progress.advance(1)
         e_f, e_b = rep_f, rep_b
         for k in range(passes):
@@ -527,22 +537,24 @@ def _shadowed(
             last = k == passes - 1
             if last:  # the front at every vertex is the output
                 front = trees.sides[0]
-                e_f = first_f - tree_gather(trees.occluders, front, w_back, own=own, cells=trees.cells(front, 1)) - tree_gather(
-                    trees.occluders, front, w_front, flip=True, own=own, cells=trees.cells(front, -1))
+                e_f = first_f - tree_gather(trees.occluders, front, w_back, own=own, cells=trees.cells(front, 1),
+                                            reach=reach) - tree_gather(
+                    trees.occluders, front, w_front, flip=True, own=own, cells=trees.cells(front, -1), reach=reach)
             else:
                 sides = trees.rep_sides if shared else trees.sides
                 own_s = None if own is None else (trees.rep_own if shared else own)
-                e_f, e_b = (first - tree_gather(trees.occluders, side, w_back, own=own_s, cells=trees.cells(side, 1))
-                            - tree_gather(trees.occluders, side, w_front, flip=True, own=own_s, cells=trees.cells(side, -1))
+                e_f, e_b = (first - tree_gather(trees.occluders, side, w_back, own=own_s, cells=trees.cells(side, 1), reach=reach)
+                            - tree_gather(trees.occluders, side, w_front, flip=True, own=own_s, cells=trees.cells(side, -1),
+                                          reach=reach)
                             for first, side in zip((rep_f, rep_b), sides, strict=True))  # fmt: skip
             progress.advance(1)
         if passes == 0:
             e_f = first_f
     else:
         if emitters is not None:
-            src = _emitting(emitters)
+            src = (*_emitting(emitters), math.inf)
         else:
-            src = (elements.positions[idx], elements.normals[idx], elements.areas[idx], radiance[idx], idx)
+            src = (elements.positions[idx], elements.normals[idx], elements.areas[idx], radiance[idx], idx, reach)
         first_f = _gather(front_p, front_n, *src)
         first_b = _gather(back_p, back_n, *src)
         progress.advance(1)
@@ -563,8 +575,8 @@ def _shadowed(
                 weight = np.concatenate([np.maximum(e_b, 0.0)[faces].mean(axis=1), np.maximum(e_f, 0.0)[faces].mean(axis=1)]) / math.pi
             else:
                 weight = np.concatenate([np.maximum(e_b[idx], 0.0), np.maximum(e_f[idx], 0.0)]) / math.pi
-            e_f = first_f - _gather(front_p, front_n, centres, normals, areas, weight, own)
-            e_b = first_b - _gather(back_p, back_n, centres, normals, areas, weight, own)
+            e_f = first_f - _gather(front_p, front_n, centres, normals, areas, weight, own, reach)
+            e_b = first_b - _gather(back_p, back_n, centres, normals, areas, weight, own, reach)
             progress.advance(1)
     low = np.any(e_f < 0.0, axis=1) if n else np.zeros(0, dtype=bool)
     return np.maximum(e_f, 0.0), low, float(-np.minimum(e_f, 0.0).sum())
@@ -641,7 +653,7 @@ def _sides(elements: DiskElements):
 
 def _aimed(
     elements: DiskElements, emitters: EmitterDisks, patches: EmitterDisks, passes: int, progress, emitting=None,
-    faces_occlude: bool = True, trees: _Trees | None = None,
+    faces_occlude: bool = True, trees: _Trees | None = None, reach: float = math.inf,
 ) -> tuple:  # fmt: skip
     """Irradiance at the vertices (front side) from ``emitters``, shadowed by the vertex
     disks in ``passes`` passes aimed at the lights; the vertices taken below zero and the
@@ -657,7 +669,8 @@ def _aimed(
     occluders are the triangles (centroid, normal, area; a side's light the mean of its
     corners'), which tile the surface, rather than the vertex disks, whose circles
     leave gaps and overhang edges (direct light on the box: 4.6% against 10.6%). With
-    ``trees`` each receiver walks the occluders' tree (``lighttree.aimed_shadow_tree``)."""
+    ``trees`` each receiver walks the occluders' tree (``lighttree.aimed_shadow_tree``).
+    ``reach``: occluders farther from a receiver block nothing (``--max-distance``)."""
     idx = elements.emitter_index
     n, n_groups = elements.n_vertices, emitters.n_groups
     front_p, front_n, back_p, back_n = _sides(elements)
@@ -698,12 +711,13 @@ def _aimed(
         for side, (pts, nrm) in enumerate(((front_p, front_n),) if last else ((front_p, front_n), (back_p, back_n))):
             if trees is not None and not last and trees.reps.shape[0] < n:
                 part = np.empty((trees.reps.shape[0], n_groups))
-                aimed_shadow_tree(pts[trees.reps], nrm[trees.reps], trees.occluders, occ_own, vis, rows, part, *trees.aimed)
+                aimed_shadow_tree(pts[trees.reps], nrm[trees.reps], trees.occluders, occ_own, vis, rows, part, *trees.aimed,
+                                  reach=reach)
                 blocked[:] = part[trees.rep_index]
             elif trees is not None:
-                aimed_shadow_tree(pts, nrm, trees.occluders, occ_own, vis, rows, blocked, *trees.aimed)
+                aimed_shadow_tree(pts, nrm, trees.occluders, occ_own, vis, rows, blocked, *trees.aimed, reach=reach)
             else:
-                _kls.aimed_shadow(pts, nrm, occ, occ_own, vis, rows, blocked)
+                _kls.aimed_shadow(pts, nrm, occ, occ_own, vis, rows, reach * reach, blocked)
             lit[side] = first[side] * (1.0 - blocked)[:, :, None]
         progress.advance(1)
     low = np.any(lit[0] < 0.0, axis=(1, 2)) if n else np.zeros(0, dtype=bool)

@@ -45,6 +45,7 @@ class DiskTree:
         self.start, self.stop, self.skip = start, stop, skip
         g = node_geometry(centres, areas, self.order, start, stop)
         self.geometry = g
+        self.radius = np.ascontiguousarray(g[:, 3])  # bounding radius about the centre
         self.e_pos = np.ascontiguousarray(centres[self.order])
         self.e_nrm = np.ascontiguousarray(normals[self.order])
         self.e_area = np.ascontiguousarray(areas[self.order])
@@ -113,12 +114,14 @@ class Receivers:
         self._no_cells = (np.zeros(self.n + 1, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros(0))
 
 
-def tree_gather(tree: DiskTree, receivers: Receivers, radiance, *, flip: bool = False, own=None, cells=None) -> np.ndarray:
+def tree_gather(tree: DiskTree, receivers: Receivers, radiance, *, flip: bool = False, own=None, cells=None,
+                reach: float = math.inf) -> np.ndarray:  # fmt: skip
     """(n, 3) irradiance at ``receivers`` from ``tree``'s disks sending ``radiance`` (k, 3)
     (disk order): the transfer's disk terms through the tree. ``flip``: the disks face the
     other way (their back sides emit). ``own`` (n,) int64: the disk each receiver does not
     take (-1: none). ``cells``: a near field (:meth:`DiskTree.triangle_cells` of the side
-    that emits) whose values replace those disks' terms."""
+    that emits) whose values replace those disks' terms. ``reach``: disks farther from a
+    receiver give it nothing (``--max-distance``)."""
     out = np.zeros((receivers.n, 3))
     if tree.size == 0 or receivers.n == 0:
         return out
@@ -135,7 +138,8 @@ def tree_gather(tree: DiskTree, receivers: Receivers, radiance, *, flip: bool = 
     _kt2.gather_tree(
         receivers.points, receivers.normals, receivers.order, receivers.bucket_start, receivers.bounds,
         min(TRANSFER_CHUNKS, n_buckets), tree.skip, tree.start, tree.stop, tree.table, light,
-        tree.e_pos, np.ascontiguousarray(e_nrm), tree.e_area, radiance, own_pos, *(cells or receivers._no_cells), out,
+        tree.e_pos, np.ascontiguousarray(e_nrm), tree.e_area, radiance, own_pos, *(cells or receivers._no_cells),
+        float(reach), tree.radius, out,
     )  # fmt: skip
     return out
 
@@ -196,13 +200,15 @@ def aimed_nodes(tree: DiskTree, vis, theta: float = AIMED_THETA) -> np.ndarray:
 
 
 def aimed_shadow_tree(
-    points, normals, tree: DiskTree, own, vis, patches, out, theta: float = AIMED_THETA, edge: float = AIMED_EDGE
-) -> None:
+    points, normals, tree: DiskTree, own, vis, patches, out, theta: float = AIMED_THETA, edge: float = AIMED_EDGE,
+    reach: float = math.inf,
+) -> None:  # fmt: skip
     """``lightshadow.aimed_shadow`` with the occluders in ``tree`` (``own`` (k,), ``vis``
     (k, 2, G) in disk order), written to ``out`` (n, G); ``theta`` and ``edge`` as in
     ``lightshadowtree.aimed_shadow_tree`` (``theta = inf``: the brute-force kernel's result,
     up to the order of its sums; ``edge = 0``: clusters used whole only away from every
-    patch cap's edge, where a flat one adds exactly)."""
+    patch cap's edge, where a flat one adds exactly); occluders farther than ``reach``
+    block nothing."""
     from ...kernels import lightshadowtree as _kst
 
     if tree.size == 0:
@@ -212,4 +218,5 @@ def aimed_shadow_tree(
     vis_t = np.ascontiguousarray(vis[tree.order])
     nodes = aimed_nodes(tree, vis_t, theta)
     _kst.aimed_shadow_tree(np.ascontiguousarray(points), np.ascontiguousarray(normals), tree.skip, tree.start,
-                           tree.stop, nodes, occ, np.ascontiguousarray(own[tree.order]), vis_t, patches, float(edge), out)  # fmt: skip
+                           tree.stop, nodes, occ, np.ascontiguousarray(own[tree.order]), vis_t, patches, float(edge),
+                           float(reach) ** 2, out)  # fmt: skip

@@ -13,6 +13,8 @@ import numpy as np
 from ...kernels import transfer as _kt
 from .elements import DiskElements
 
+_NO_RADIUS = np.zeros(0)  # gather_tree's node radii, read only with a finite reach
+
 
 def outgoing_radiance(albedo, irradiance, emission=None) -> np.ndarray:
     """(n, 3) radiance a Lambertian vertex sends out: ``albedo irradiance / pi + emission``."""
@@ -22,12 +24,13 @@ def outgoing_radiance(albedo, irradiance, emission=None) -> np.ndarray:
     return np.ascontiguousarray(np.broadcast_to(out, np.shape(irradiance)), dtype=np.float64)
 
 
-def transfer(points, normals, centres, disk_normals, areas, radiance, own=None) -> np.ndarray:
+def transfer(points, normals, centres, disk_normals, areas, radiance, own=None, reach=math.inf) -> np.ndarray:
     """(n, 3) irradiance at each receiver (point, unit normal) from every emitting disk.
 
     Each disk of area ``A`` and radiance ``L`` adds ``pi L A cos_e cos_r / (pi r^2 + A)``
     (exact on a disk's axis), nothing from behind either side; no shadowing. ``own[j]``
-    names the receiver disk j belongs to, which it does not light (default: none).
+    names the receiver disk j belongs to, which it does not light (default: none); a disk
+    whose centre is farther than ``reach`` from a receiver does not light it.
     """
     points = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
     normals = np.ascontiguousarray(normals, dtype=np.float64).reshape(-1, 3)
@@ -40,7 +43,7 @@ def transfer(points, normals, centres, disk_normals, areas, radiance, own=None) 
         raise ValueError("transfer: receivers need (n, 3) points and normals; disks (k, 3) centres, normals, radiance and (k,) areas")
     own = np.full(k, -1, dtype=np.int64) if own is None else np.ascontiguousarray(own, dtype=np.int64).reshape(k)
     out = np.empty(points.shape)
-    _kt.gather(points, normals, centres, disk_normals, areas, radiance, own, out)
+    _kt.gather(points, normals, centres, disk_normals, areas, radiance, own, float(reach) ** 2, out)
     return out
 
 
@@ -217,7 +220,7 @@ class TransferScene:
         _kt2.gather_tree(
             self._points, self._normals, self._recv_order, self._bucket_start, self._bounds,
             min(TRANSFER_CHUNKS, n_buckets), tree.skip, tree.start, tree.stop, self._geometry,
-            light, self._e_pos, self._e_nrm, self._e_area, e_rad, self._own_pos, *self._cells, out,
+            light, self._e_pos, self._e_nrm, self._e_area, e_rad, self._own_pos, *self._cells, math.inf, _NO_RADIUS, out,
         )  # fmt: skip
         return out
 
