@@ -4,6 +4,7 @@ its RectLight and as an emissive quad, for each shadowing variant, and the time 
 beside the reference method at its defaults.
 
     PYTHONPATH=. python bench/bench_bunnell_light.py [--ref-samples 4096] [--ref-paths 16384] [--near 0,4]
+        [--max-distance D]
 
 Goal: relative RMSE <= 0.08 at the defaults (aimed, two shadow passes, one bounce).
 "published": every shadow pass as the GPU Gems 2 chapter's (isotropic), the vertex disks
@@ -48,6 +49,8 @@ def main():
     parser.add_argument("--passes", default="0,1,2,3", help="shadow passes to measure")
     parser.add_argument("--disks", default="256", help="disks per area light to measure")
     parser.add_argument("--near", default="0,4", help="the triangles' near-field reach (trees, faces occlude) to measure")
+    parser.add_argument("--max-distance", type=float, default=None,
+                        help="cap both methods (and the reference) at this distance; the disk method's defaults also uncapped")  # fmt: skip
     parser.add_argument("--big", type=int, default=0, help="bake a lit scene of about N vertices instead")
     parser.add_argument("--big-light", default="rect", choices=("rect", "point"))
     parser.add_argument("--relight", type=int, default=0, help="time re-lighting a prepared scene of about N vertices")
@@ -67,13 +70,17 @@ def main():
     irradiance(surface, shading, n_samples=1, n_indirect=1)
     print(f"scene {path.name}: {surface.n_vertices} vertices; reference {args.ref_samples} samples, "
           f"{args.ref_paths} paths; bunnell defaults: {SHADOW_PASSES} shadow passes, 1 bounce")
-    for name, surf, sh, scored, ref, t_ref in references(surface, shading, args.ref_samples, args.ref_paths):
+    capped = {} if args.max_distance is None else {"max_distance": args.max_distance}
+    for name, surf, sh, scored, ref, t_ref in references(surface, shading, args.ref_samples, args.ref_paths, **capped):
         t = time.perf_counter()
-        emb = irradiance(surf, sh)
+        emb = irradiance(surf, sh, **capped)
         t_emb = time.perf_counter() - t
         e_ref = ref.irradiance[:scored]
         print(f"{name}: embree defaults rel. RMSE {rel_rmse(emb.irradiance[:scored], e_ref):.4f} in {t_emb:.3f} s "
               f"(reference {t_ref:.1f} s)")
+        if capped:
+            free = disk_light(surf, sh).irradiance[:scored]
+            print(f"  bunnell defaults, not capped: rel. RMSE {rel_rmse(free, e_ref):.4f} against the capped reference")
         schemes = {"published": {"aimed": False, "faces_occlude": False}, "aimed, disks occlude": {"faces_occlude": False},
                    "aimed, faces occlude (brute force)": {"theta": None}, "aimed, faces occlude": {}}  # fmt: skip
         for what, knobs in schemes.items():
@@ -84,7 +91,7 @@ def main():
                 kw = dict(knobs) if near is None else {**knobs, "near": float(near)}
                 label = what if near is None else f"{what}, near {near}"
                 t = time.perf_counter()
-                r = disk_light(surf, sh, BunnellOptions(), shadow_passes=int(passes), light_disks=int(disks), **kw)
+                r = disk_light(surf, sh, BunnellOptions(**capped), shadow_passes=int(passes), light_disks=int(disks), **kw)
                 dt = time.perf_counter() - t
                 print(f"  bunnell {label}, {passes} shadow passes, {disks} disks/light: rel. RMSE "
                       f"{rel_rmse(r.irradiance[:scored], e_ref):.4f} (direct {rel_rmse(r.direct[:scored], ref.direct[:scored]):.4f}, "

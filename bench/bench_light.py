@@ -58,16 +58,16 @@ def emissive_variant(surface, shading):
     ), n  # fmt: skip
 
 
-def references(surface, shading, samples, paths):
+def references(surface, shading, samples, paths, **changes):
     """``(name, surface, shading, scored vertices, reference, its seconds)`` of the box with
     its RectLight and as an emissive quad: the high-sample estimates the light benches
-    measure against."""
+    measure against (``changes``: more of ``irradiance``'s options, e.g. ``max_distance``)."""
     for name, (surf, sh, scored) in {
         "RectLight": (surface, shading, surface.n_vertices),
         "emissive quad": emissive_variant(surface, shading),
     }.items():
         t = time.perf_counter()
-        ref = irradiance(surf, sh, n_samples=samples, n_indirect=paths, seed=12345)
+        ref = irradiance(surf, sh, n_samples=samples, n_indirect=paths, seed=12345, **changes)
         yield name, surf, sh, scored, ref, time.perf_counter() - t
 
 
