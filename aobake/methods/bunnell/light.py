@@ -115,8 +115,6 @@ def run_light(
     ``options`` (its ``bounces``; ``indirect=False``: direct light only). A vertex whose
     shadowed light went negative is set to 0 and counted (a warning, and ``negative``)."""
     result = disk_light(surface, shading, options, bounces=options.bounces if indirect else 0, progress=progress, ground=ground)
-    if ground is not None and indirect and options.bounces > 0:
-        warnings.warn(f"{surface.source}: --method bunnell does not bounce light off the --ground plane (it occludes)", stacklevel=2)
     if result.negative:
         total = float(result.irradiance.sum())
         share = result.clipped / total if total > 0 else 0.0
@@ -188,7 +186,9 @@ def disk_light(
         plane instead of as a disk, as the AO's near field; 0: disks only. Default:
         ``options.near`` (``--near``, 4).
     ground : aobake.ground.Ground, optional
-        Occludes the shadow rays and the dome; its reflected light is not modelled.
+        Occludes the shadow rays and the dome; with bounces, it also reflects (albedo
+        ``aobake.ground.ALBEDO``) as a grid of ground elements about the surface
+        (:func:`ground_grid`).
 
     Returns
     -------
@@ -197,9 +197,10 @@ def disk_light(
         ``negative``: vertices whose shadowed light went below zero (set to 0).
     """
     t0 = time.perf_counter()
+    reflects = ((options or BunnellOptions()).bounces if bounces is None else int(bounces)) > 0  # the ground's grid
     scene = prepare_light(surface, shading, options, shadow_passes=shadow_passes, light_disks=light_disks, aimed=aimed,
                           faces_occlude=faces_occlude, theta=theta, aimed_theta=aimed_theta, aimed_edge=aimed_edge,
-                          share=share, near=near, ground=ground)  # fmt: skip
+                          share=share, near=near, ground=ground, ground_reflects=reflects)  # fmt: skip
     result = scene.light(bounces=bounces, progress=progress)
     return replace(result, seconds=time.perf_counter() - t0)
 
@@ -219,11 +220,15 @@ def prepare_light(
     share: bool = True,
     near: float | None = None,
     ground: Ground | None = None,
+    ground_reflects: bool = True,
 ) -> LitScene:
     """``surface`` and ``shading`` prepared for :meth:`LitScene.light`, which lights it
     with any lights (moved, re-coloured, added) without rebuilding what does not depend
     on them. The parameters are :func:`disk_light`'s; ``disk_light(...)`` equals
-    ``prepare_light(...).light()`` (the same code)."""
+    ``prepare_light(...).light()`` (the same code). With a ``ground`` that
+    ``ground_reflects`` (what ``disk_light`` asks for when the light bounces), the scene
+    carries a grid of ground elements (:func:`ground_grid`) that receive, reflect and
+    occlude like the surface; the results are the surface's vertices alone."""
     options = BunnellOptions() if options is None else options
     check_shading(surface, shading)
     n = surface.n_vertices
@@ -239,8 +244,11 @@ def prepare_light(
     if not (near >= 0.0 and math.isfinite(near)):
         raise ValueError(f"near must be finite and >= 0, got {near!r}")
     settings = _Settings(shadow_passes, light_disks, aimed, faces_occlude, theta, (aimed_theta, aimed_edge), share, near)
+    mesh = surface
+    if ground is not None and ground_reflects:
+        surface, shading = ground_grid(surface, shading, ground)
     with numba_threads(mesh_threads(options.threads, n)):
-        return LitScene(surface, shading, options, settings, ground)
+        return LitScene(surface, shading, options, settings, ground, mesh=mesh)
 
 
 @dataclass(frozen=True)
@@ -266,13 +274,18 @@ class LitScene:
     passes when those lights changed, the bounces)."""
 
     def __init__(self, surface: Surface, shading: Shading, options: BunnellOptions, settings: _Settings,
-                 ground: Ground | None):  # fmt: skip
+                 ground: Ground | None, mesh: Surface | None = None):  # fmt: skip
         self.surface, self.shading, self.options, self.settings, self.ground = surface, shading, options, settings, ground
+        mesh = surface if mesh is None else mesh  # the input; ``surface`` may carry a ground grid after it
+        self.keep = mesh.n_vertices
         self.elements = build_elements(surface)
         # --max-distance in the elements' normalised units: farther geometry neither
         # reflects nor occludes, as the reference's capped rays
         self.reach = math.inf if options.max_distance is None else float(options.max_distance) / self.elements.scale
-        self._rays = _ShadowRays(surface, options, ground)
+        # the shadow rays trace the input alone (the plane stands for the grid), so the
+        # grid's reach does not coarsen the input's float32 frame and ray offsets
+        self._rays = _ShadowRays(mesh, options, ground)
+        self._grid_rays = _GridRays(self._rays, surface.positions[self.keep :]) if surface is not mesh else None
         self._trees: _Trees | None = None
         self._ao = None  # the dome's occlusion (cosine measure), once a shadowed dome asks
         self._area_key = None  # the area lights (and emitters) of the kept emitted light
@@ -298,6 +311,13 @@ class LitScene:
         t0 = time.perf_counter()
         progress.start(2 + (1 + st.shadow_passes) * (1 + bounces), "light")
         exact, stats, contacts, rays = _exact_direct(self._rays, lights)
+        if self._grid_rays is not None:  # the ground grid's points, against the input
+            grid, grid_stats, _, grid_rays = _exact_direct(self._grid_rays, lights)
+            exact, rays = np.concatenate([exact, grid]), rays + grid_rays
+            stats = tuple(
+                LightStats(a.name, *(getattr(a, f.name) + getattr(b, f.name) for f in fields(LightStats)[1:]))
+                for a, b in zip(stats, grid_stats, strict=True)
+            )
         progress.advance(1)
         direct = exact
         dome = self._dome(lights)
@@ -307,7 +327,7 @@ class LitScene:
         bouncing = bounces > 0 and shading.reflects
         key = _area_key(lights, st.light_disks)
         negative = np.zeros(n, dtype=bool)
-        clipped = 0.0
+        clipped = np.zeros(n)
         if key == self._area_key:  # the same area lights and emitters: their light is kept
             lit, low, clip = self._area
             direct = direct + lit
@@ -327,7 +347,7 @@ class LitScene:
                     lit, low, clip = _shadowed(elements, emitters, None, st.shadow_passes, progress, st.faces_occlude, trees,
                                                self.reach)
             else:
-                lit, low, clip = np.zeros((n, 3)), np.zeros(n, dtype=bool), 0.0
+                lit, low, clip = np.zeros((n, 3)), np.zeros(n, dtype=bool), np.zeros(n)
                 progress.advance(1 + st.shadow_passes)
             self._area_key, self._area = key, (lit, low, clip)
             direct = direct + lit
@@ -350,18 +370,19 @@ class LitScene:
         for name, arr in (("direct", direct), ("indirect", indirect)):
             if not np.isfinite(arr).all() or arr.min(initial=0.0) < 0:
                 raise NumericalError(f"{self.surface.source}: the disk transfer produced a {name} irradiance that is negative or not finite")
+        k = self.keep  # the input's vertices (a reflecting ground's grid follows them)
         return LightResult(
-            direct=direct,
-            indirect=indirect,
-            error=np.zeros((n, 3)),
+            direct=direct[:k],
+            indirect=indirect[:k],
+            error=np.zeros((k, 3)),
             n_shadow_rays=rays,
             n_bounce_rays=0,
             lights=stats,
-            samples=np.zeros(n, dtype=np.int64),
+            samples=np.zeros(k, dtype=np.int64),
             seconds=time.perf_counter() - t0,
             contacts=contacts,
-            negative=int(np.count_nonzero(negative)),
-            clipped=clipped,
+            negative=int(np.count_nonzero(negative[:k])),
+            clipped=float(clipped[:k].sum()),
         )
 
     def _trees_for(self, needed: bool) -> _Trees | None:
@@ -484,6 +505,86 @@ class _Trees:
         return self._cells[key][0 if facing > 0 else 1]
 
 
+#: The reflecting ground's grid (:func:`ground_grid`): points a side, how far it reaches in
+#: units of the surface's size, and how much finer its cells are at the centre than at the
+#: rim (sinh spacing). Measured in docs/bunnell-light.md.
+GROUND_POINTS = 81
+GROUND_REACH = 256.0
+GROUND_GROWTH = 7.5
+
+
+def ground_grid(surface: Surface, shading: Shading, ground: Ground) -> tuple[Surface, Shading]:
+    """``surface`` with a square grid of ground triangles appended in the plane (facing up,
+    albedo ``ALBEDO``, not emitting), centred under it and reaching ``GROUND_REACH`` times
+    its size (the larger of its half footprint and its height over the plane), its cells
+    growing from the centre outwards; and ``shading`` extended to match. The surface's
+    vertices, faces and normals come first, unchanged. Past the grid the plane occludes
+    but does not reflect; where a triangle of the surface lies in the plane (a modelled
+    floor) the grid has a hole: its points there, and the triangles that touch them, are
+    left out (the reference's plane reflects only where nothing of the mesh lies in it; a
+    grid coinciding with the floor would also bury the floor's receivers)."""
+    from ...ground import ALBEDO
+    from ...mesh import surface_from_arrays
+
+    pos = np.asarray(surface.positions, dtype=np.float64)
+    up = int(ground.axis)
+    u, v = {0: (1, 2), 1: (2, 0), 2: (0, 1)}[up]  # e_u x e_v = e_up: the triangles face up
+    lo, hi = pos.min(axis=0), pos.max(axis=0)
+    size = max(0.5 * (hi[u] - lo[u]), 0.5 * (hi[v] - lo[v]), hi[up] - float(ground.height))
+    size = size if size > 0 else 1.0
+    t = np.sinh(GROUND_GROWTH * np.linspace(-1.0, 1.0, GROUND_POINTS)) / math.sinh(GROUND_GROWTH) * GROUND_REACH * size
+    gu, gv = np.meshgrid(0.5 * (lo[u] + hi[u]) + t, 0.5 * (lo[v] + hi[v]) + t, indexing="ij")
+    grid = np.zeros((GROUND_POINTS * GROUND_POINTS, 3))
+    grid[:, u], grid[:, v], grid[:, up] = gu.ravel(), gv.ravel(), float(ground.height)
+    i, j = np.meshgrid(np.arange(GROUND_POINTS - 1), np.arange(GROUND_POINTS - 1), indexing="ij")
+    a = (i * GROUND_POINTS + j).ravel()
+    b, c, d = a + GROUND_POINTS, a + GROUND_POINTS + 1, a + 1  # (i+1, j), (i+1, j+1), (i, j+1)
+    faces = np.concatenate([np.column_stack([a, b, c]), np.column_stack([a, c, d])]) + surface.n_vertices
+    normal = np.zeros((len(grid), 3))
+    normal[:, up] = 1.0
+    covered = _under_a_floor(pos, np.asarray(surface.faces), float(ground.height), up, u, v, gu.ravel(), gv.ravel())
+    faces = faces[~np.any(covered[faces - surface.n_vertices], axis=1)]  # a hole where a floor is modelled
+    joined = surface_from_arrays(np.concatenate([pos, grid]), np.concatenate([np.asarray(surface.faces), faces]),
+                                 np.concatenate([np.asarray(surface.normals, dtype=np.float64), normal]),
+                                 name="ground", source=surface.source)  # fmt: skip
+    grey_f, grey_v = np.full((len(faces), 3), ALBEDO), np.full((len(grid), 3), ALBEDO)
+    grey_v[covered] = 0.0  # a floor modelled in the plane reflects there, with its own albedo
+    return joined, replace(
+        shading,
+        face_albedo=np.concatenate([np.asarray(shading.face_albedo, dtype=np.float64), grey_f]),
+        face_emission=np.concatenate([np.asarray(shading.face_emission, dtype=np.float64), np.zeros_like(grey_f)]),
+        vertex_albedo=np.concatenate([np.asarray(shading.vertex_albedo, dtype=np.float64), grey_v]),
+        vertex_emission=np.concatenate([np.asarray(shading.vertex_emission, dtype=np.float64), np.zeros_like(grey_v)]),
+    )
+
+
+def _under_a_floor(pos, faces, height, up, u, v, gu, gv) -> np.ndarray:
+    """(N^2,) bool: the points of the tensor grid (``gu``, ``gv``) inside
+    a triangle of ``faces`` whose corners all lie in the plane (within 1e-9 of the extent)."""
+    out = np.zeros(gu.shape[0], dtype=bool)
+    if faces.shape[0] == 0:
+        return out
+    tol = 1e-9 * max(float(np.ptp(pos, axis=0).max()), 1.0)
+    flat = faces[np.all(np.abs(pos[faces][:, :, up] - height) <= tol, axis=1)]
+    if flat.shape[0] == 0:
+        return out
+    cu, cv = pos[flat][:, :, u], pos[flat][:, :, v]
+    xs, ys = np.unique(gu), np.unique(gv)  # the grid's coordinates along u and v
+    i0, i1 = np.searchsorted(xs, cu.min(axis=1)), np.searchsorted(xs, cu.max(axis=1), side="right")
+    j0, j1 = np.searchsorted(ys, cv.min(axis=1)), np.searchsorted(ys, cv.max(axis=1), side="right")
+    n = ys.shape[0]
+    for f in np.flatnonzero((i1 > i0) & (j1 > j0)):
+        ii, jj = np.meshgrid(np.arange(i0[f], i1[f]), np.arange(j0[f], j1[f]), indexing="ij")
+        px, py = xs[ii.ravel()], ys[jj.ravel()]
+        (ax, bx, cx), (ay, by, cy) = cu[f], cv[f]
+        d1 = (px - bx) * (ay - by) - (ax - bx) * (py - by)
+        d2 = (px - cx) * (by - cy) - (bx - cx) * (py - cy)
+        d3 = (px - ax) * (cy - ay) - (cx - ax) * (py - ay)
+        inside = ~((np.minimum(np.minimum(d1, d2), d3) < 0) & (np.maximum(np.maximum(d1, d2), d3) > 0))
+        out[(ii.ravel() * n + jj.ravel())[inside]] = True
+    return out
+
+
 def _gather(points, normals, centres, disk_normals, areas, radiance, own, reach=math.inf) -> np.ndarray:
     """(n, 3) irradiance at the receivers from one-sided disks, every pair summed (the
     brute-force :func:`~aobake.methods.bunnell.transfer.transfer`; the step a tree replaces)."""
@@ -497,7 +598,7 @@ def _shadowed(
     """Irradiance at the vertices (front side) from ``emitters`` (or, ``radiance`` (n, 3):
     the vertices' own disks reflecting), shadowed by the triangles (``faces_occlude``;
     else the vertex disks, as published) in ``passes`` passes; and a bool mask of the
-    vertices it took below zero (set to 0), and the negative parts' summed magnitude.
+    vertices it took below zero (set to 0), and each vertex's negative parts' summed magnitude.
 
     Pass 0 distributes the light unshadowed to both sides of every vertex. Pass k
     subtracts, at each receiver, ``G E_{k-1}`` of every vertex disk (two-sided: an
@@ -579,7 +680,7 @@ def _shadowed(
             e_b = first_b - _gather(back_p, back_n, centres, normals, areas, weight, own, reach)
             progress.advance(1)
     low = np.any(e_f < 0.0, axis=1) if n else np.zeros(0, dtype=bool)
-    return np.maximum(e_f, 0.0), low, float(-np.minimum(e_f, 0.0).sum())
+    return np.maximum(e_f, 0.0), low, -np.minimum(e_f, 0.0).sum(axis=1)
 
 
 def _emitting(emitters: EmitterDisks) -> tuple:
@@ -656,8 +757,8 @@ def _aimed(
     faces_occlude: bool = True, trees: _Trees | None = None, reach: float = math.inf,
 ) -> tuple:  # fmt: skip
     """Irradiance at the vertices (front side) from ``emitters``, shadowed by the vertex
-    disks in ``passes`` passes aimed at the lights; the vertices taken below zero and the
-    negative parts' summed magnitude.
+    disks in ``passes`` passes aimed at the lights; the vertices taken below zero and each
+    vertex's negative parts' summed magnitude.
 
     Pass 0 distributes each light's disks unshadowed, U, to both sides of every vertex.
     Pass k subtracts at each receiver, for every vertex disk whose line from the
@@ -721,7 +822,7 @@ def _aimed(
             lit[side] = first[side] * (1.0 - blocked)[:, :, None]
         progress.advance(1)
     low = np.any(lit[0] < 0.0, axis=(1, 2)) if n else np.zeros(0, dtype=bool)
-    return np.maximum(lit[0], 0.0).sum(axis=1), low, float(-np.minimum(lit[0], 0.0).sum())
+    return np.maximum(lit[0], 0.0).sum(axis=1), low, -np.minimum(lit[0], 0.0).sum(axis=(1, 2))
 
 
 def emitter_disks(elements: DiskElements, shading: Shading, lights=(), light_disks: int = LIGHT_DISKS) -> EmitterDisks:
@@ -828,6 +929,24 @@ class _ShadowRays:
             face_edges = edges[faces].max(axis=1) if faces.size else np.zeros(0)
             shorten = RAY_OFFSET_ULPS * EPS32 * (tracer.magnitude + face_edges)
             self._origins = (origins, contacts, faces, shorten)
+        return self._origins
+
+
+class _GridRays:
+    """:class:`_ShadowRays` for the ground grid's points (facing up, in the plane): the
+    input's Embree scene, origins lifted off the plane by the float32 rounding of their
+    magnitude (no contacts: the plane is not in the scene)."""
+
+    def __init__(self, rays: _ShadowRays, positions):
+        self.tracer, self.ground, self.far_cap = rays.tracer, rays.ground, rays.far_cap
+        self.points = np.ascontiguousarray(np.asarray(positions, dtype=np.float64) - rays.tracer.center)
+        self.normals = np.zeros_like(self.points)
+        self.normals[:, rays.ground.axis] = 1.0
+        lift = RAY_OFFSET_ULPS * EPS32 * (rays.tracer.magnitude + np.abs(self.points).max(axis=1))
+        self._origins = (rays.tracer.frame(self.points + lift[:, None] * self.normals), 0,
+                         np.zeros((1, 3), dtype=np.int64), np.zeros(1))  # fmt: skip
+
+    def origins(self) -> tuple:
         return self._origins
 
 
