@@ -241,8 +241,8 @@ def test_ground_reflects_as_the_closed_form_and_the_reference():
     elements. A small vertical plate at height 0.5 under a distant light gets
     rho E_perp (l.up) / 2 from it (the reference's closed form: within 2%; the grid's reach
     is finite); a sphere resting on the plane is within 2% of the reference with the same
-    plane (relative RMSE; 16% without the reflection). Without bounces there is no grid:
-    the same bits as a plane that only occludes."""
+    plane (relative RMSE; 16% without the reflection), and the same with Y up. Without
+    bounces there is no grid: the same bits as a plane that only occludes."""
     h, a = 0.5, 0.01
     plate = np.array([[0, -a, h - a], [0, a, h - a], [0, a, h + a], [0, -a, h + a]], dtype=float)
     s = surface_from_arrays(plate, np.array([[0, 2, 1], [0, 3, 2]]))  # facing -x
@@ -261,6 +261,11 @@ def test_ground_reflects_as_the_closed_form_and_the_reference():
     ref = irradiance(ball, shading, n_samples=64, n_indirect=2048, seed=3, ground=ground).irradiance
     rel = lambda e: math.sqrt(((e - ref) ** 2).sum() / (ref**2).sum())  # noqa: E731
     assert rel(disk_light(ball, shading, ground=ground).irradiance) < 0.02
+    z_up = disk_light(ball, shading, ground=ground).irradiance
+    ball_y = surface_from_arrays(ball.positions[:, [1, 2, 0]], ball.faces)  # the same scene, Y up
+    sun_y = Light.make("distant", "sun", (3.0, 3.0, 3.0), direction=(0.2, 1.0, 0.3))
+    y_up = disk_light(ball_y, default_shading(ball.n_vertices, ball.n_faces, [sun_y]), ground=Ground(1, 0.0)).irradiance
+    assert np.abs(y_up - z_up).max() < 2e-3 * z_up.max()  # the grid's diagonals differ
     occluding = prepare_light(ball, shading, ground=ground, ground_reflects=False)
     assert rel(occluding.light().irradiance) > 0.1
     direct = disk_light(ball, shading, ground=ground, bounces=0)
