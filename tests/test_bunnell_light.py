@@ -270,6 +270,13 @@ def test_ground_reflects_as_the_closed_form_and_the_reference():
     assert rel(occluding.light().irradiance) > 0.1
     direct = disk_light(ball, shading, ground=ground, bounces=0)
     assert np.array_equal(direct.irradiance, occluding.light(bounces=0).irradiance)
+    # under a dome: the ball's own AO is taken without the grid (its direct light the
+    # plane-only bake's bits); the grid's points see the sky past the ball
+    sky = default_shading(ball.n_vertices, ball.n_faces, [Light.make("dome", "sky", (1.0, 1.0, 1.0))])
+    r = disk_light(ball, sky, ground=ground)
+    assert np.array_equal(r.direct, prepare_light(ball, sky, ground=ground, ground_reflects=False).light().direct)
+    ref = irradiance(ball, sky, n_samples=64, n_indirect=1024, seed=3, ground=ground).irradiance
+    assert math.sqrt(((r.irradiance - ref) ** 2).sum() / (ref**2).sum()) < 0.02
 
 
 def test_a_floor_modelled_in_the_reflecting_plane_keeps_its_own():

@@ -276,7 +276,7 @@ class LitScene:
     def __init__(self, surface: Surface, shading: Shading, options: BunnellOptions, settings: _Settings,
                  ground: Ground | None, mesh: Surface | None = None):  # fmt: skip
         self.surface, self.shading, self.options, self.settings, self.ground = surface, shading, options, settings, ground
-        mesh = surface if mesh is None else mesh  # the input; ``surface`` may carry a ground grid after it
+        self.mesh = mesh = surface if mesh is None else mesh  # the input; ``surface`` may carry a ground grid after it
         self.keep = mesh.n_vertices
         self.elements = build_elements(surface)
         # --max-distance in the elements' normalised units: farther geometry neither
@@ -409,7 +409,11 @@ class LitScene:
             if self._ao is None:
                 from .estimator import bunnell_ao
 
-                self._ao = np.asarray(bunnell_ao(surface, replace(self.options, measure="cosine"), ground=self.ground))
+                options = replace(self.options, measure="cosine")
+                self._ao = np.asarray(bunnell_ao(self.mesh, options, ground=self.ground))
+                if surface is not self.mesh:  # the ground grid's points (the input's own AO: without the grid)
+                    grid = np.asarray(bunnell_ao(surface, options, ground=self.ground))[self.keep :]
+                    self._ao = np.concatenate([self._ao, grid])
             out = out + math.pi * (has_normal * self._ao)[:, None] * shadowed[None, :]
         return out
 
@@ -565,7 +569,8 @@ def _under_a_floor(pos, faces, height, up, u, v, gu, gv) -> np.ndarray:
     if faces.shape[0] == 0:
         return out
     tol = 1e-9 * max(float(np.ptp(pos, axis=0).max()), 1.0)
-    flat = faces[np.all(np.abs(pos[faces][:, :, up] - height) <= tol, axis=1)]
+    on = np.abs(pos[:, up] - height) <= tol  # per vertex: no (m, 3, 3) copy of a large mesh
+    flat = faces[np.all(on[faces], axis=1)]
     if flat.shape[0] == 0:
         return out
     cu, cv = pos[flat][:, :, u], pos[flat][:, :, v]
