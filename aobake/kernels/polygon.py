@@ -307,6 +307,19 @@ def cell_reach(positions, corner_start, corners, reach_out):
         reach_out[v] = reach
 
 
+@njit(cache=True, error_model="numpy", inline="always")
+def triangle_cross(positions, a, b, c):
+    """``(b - a) x (c - a)`` of the triangle of rows a, b, c of ``positions``: its normal
+    times twice its area."""
+    e1x = positions[b, 0] - positions[a, 0]
+    e1y = positions[b, 1] - positions[a, 1]
+    e1z = positions[b, 2] - positions[a, 2]
+    e2x = positions[c, 0] - positions[a, 0]
+    e2y = positions[c, 1] - positions[a, 1]
+    e2z = positions[c, 2] - positions[a, 2]
+    return e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x
+
+
 @njit(cache=True, error_model="numpy")
 def vertex_areas(positions, faces, out):
     """Disk areas: a third of each triangle's area ``0.5 |e1 x e2|`` (never Heron's
@@ -323,15 +336,7 @@ def vertex_areas(positions, faces, out):
         a = faces[f, 0]
         b = faces[f, 1]
         c = faces[f, 2]
-        e1x = positions[b, 0] - positions[a, 0]
-        e1y = positions[b, 1] - positions[a, 1]
-        e1z = positions[b, 2] - positions[a, 2]
-        e2x = positions[c, 0] - positions[a, 0]
-        e2y = positions[c, 1] - positions[a, 1]
-        e2z = positions[c, 2] - positions[a, 2]
-        mx = e1y * e2z - e1z * e2y
-        my = e1z * e2x - e1x * e2z
-        mz = e1x * e2y - e1y * e2x
+        mx, my, mz = triangle_cross(positions, a, b, c)
         third = np.sqrt(mx * mx + my * my + mz * mz) / 6.0
         out[a] += third
         out[b] += third

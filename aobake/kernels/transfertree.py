@@ -30,7 +30,7 @@ from numba import njit, prange
 from aobake.constants import COINCIDENT_REL, FASTMATH, MEASURE_COSINE, NEAR_PLANE_REL
 
 from .hierarchy import spread_factor
-from .polygon import cell_terms, clipped_quad
+from .polygon import cell_terms, clipped_quad, triangle_cross
 from .treewalk import B_RADIUS, behind
 from .treewalk import B_X as B_CX
 from .treewalk import B_Y as B_CY
@@ -490,17 +490,7 @@ def triangle_cells(points, normals, positions, faces, near, skip, start, stop, n
                     continue
                 f = e_face[t]
                 a = faces[f, 0]
-                b = faces[f, 1]
-                c = faces[f, 2]
-                e1x = positions[b, 0] - positions[a, 0]
-                e1y = positions[b, 1] - positions[a, 1]
-                e1z = positions[b, 2] - positions[a, 2]
-                e2x = positions[c, 0] - positions[a, 0]
-                e2y = positions[c, 1] - positions[a, 1]
-                e2z = positions[c, 2] - positions[a, 2]
-                mx = e1y * e2z - e1z * e2y
-                my = e1z * e2x - e1x * e2z
-                mz = e1x * e2y - e1y * e2x
+                mx, my, mz = triangle_cross(positions, a, faces[f, 1], faces[f, 2])
                 h = mx * (px - positions[a, 0]) + my * (py - positions[a, 1]) + mz * (pz - positions[a, 2])
                 m2 = mx * mx + my * my + mz * mz
                 edge_on = not h * h > NEAR_PLANE_REL * NEAR_PLANE_REL * m2 * np.sqrt(m2)

@@ -16,7 +16,7 @@ import numpy as np
 
 from ...kernels import hierarchy as _h
 from ...kernels import transfertree as _kt2
-from .transfer import TRANSFER_CHUNKS, TRANSFER_LEAF_SIZE, bucketed, opening_table
+from .transfer import TRANSFER_CHUNKS, TRANSFER_LEAF_SIZE, bucketed, near_cell_table, opening_table
 from .tree import node_geometry, tree_keys
 
 #: Opening parameter of the lit pipeline's transfer trees (the unshadowed bounce and the
@@ -61,20 +61,11 @@ class DiskTree:
         cells of the vertices ``vertex`` (k,) they stand for, of ``elements``, at receivers
         one per vertex (receiver i is vertex i: its own cell is left out;
         ``transfertree.near_cells``, the transfer's near field)."""
-        n = receivers.n
-        start = np.zeros(n + 1, dtype=np.int64)
         if self.size == 0 or self.near <= 0.0:
-            return start, np.zeros(0, dtype=np.int64), np.zeros(0)
-        counts = np.zeros(n, dtype=np.int64)
-        args = (receivers.points, receivers.normals, elements.positions, elements.corner_start, elements.corners,
-                self.near, self.skip, self.start, self.stop, self.reach, np.ascontiguousarray(self.geometry[:, :3]),
-                self.e_pos, self.e_area, np.ascontiguousarray(np.asarray(vertex, dtype=np.int64)[self.order]))  # fmt: skip
-        _kt2.near_cells(*args, counts, start, np.zeros(0, dtype=np.int64), np.zeros(0), False)
-        np.cumsum(counts, out=start[1:])
-        col = np.empty(start[-1], dtype=np.int64)
-        val = np.empty(start[-1])
-        _kt2.near_cells(*args, counts, start, col, val, True)
-        return start, col, val
+            return np.zeros(receivers.n + 1, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros(0)
+        vertex = np.ascontiguousarray(np.asarray(vertex, dtype=np.int64)[self.order])
+        return near_cell_table(receivers.points, receivers.normals, elements, self.near, self.skip, self.start, self.stop,
+                               self.reach, self.geometry, self.e_pos, self.e_area, vertex)  # fmt: skip
 
     def triangle_cells(self, receivers: Receivers, positions, faces) -> tuple:
         """Two ``(start, col, val)`` tables: the near field of this tree's disks as the

@@ -137,6 +137,26 @@ def receiver_buckets(points):
     return np.ascontiguousarray(perm, dtype=np.int64), np.append(start[leaves], n).astype(np.int64)
 
 
+def near_cell_table(points, normals, elements: DiskElements, near, skip, start, stop, reach, geometry, e_pos, e_area,
+                    vertex) -> tuple:  # fmt: skip
+    """``(start, col, val)``: ``transfertree.near_cells``' sparse table of the barycentric
+    cells of ``elements``' vertices ``vertex`` (the disks in tree order) at the receivers
+    (receiver i is vertex i), counted in one walk and filled in a second."""
+    from ...kernels import transfertree as _kt2
+
+    n = points.shape[0]
+    counts = np.zeros(n, dtype=np.int64)
+    cell_start = np.zeros(n + 1, dtype=np.int64)
+    args = (points, normals, elements.positions, elements.corner_start, elements.corners, near, skip, start, stop,
+            reach, np.ascontiguousarray(geometry[:, :3]), e_pos, e_area, vertex)  # fmt: skip
+    _kt2.near_cells(*args, counts, cell_start, np.zeros(0, dtype=np.int64), np.zeros(0), False)
+    np.cumsum(counts, out=cell_start[1:])
+    col = np.empty(cell_start[-1], dtype=np.int64)
+    val = np.empty(cell_start[-1])
+    _kt2.near_cells(*args, counts, cell_start, col, val, True)
+    return cell_start, col, val
+
+
 class TransferScene:
     """A scene prepared for repeated transfers (:func:`prepare_transfer`): the tree, the
     disks in tree order, the nodes' centres and opening distances, the receivers' buckets
@@ -175,23 +195,12 @@ class TransferScene:
 
     def _near_cells(self, elements: DiskElements, reach):
         """The near field's sparse table (``transfertree.near_cells``), empty when near is 0."""
-        from ...kernels import transfertree as _kt2
-
         n = self.n_vertices
         if self.near <= 0.0:
             return np.zeros(n + 1, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros(0)
         tree = self.tree
-        counts = np.zeros(n, dtype=np.int64)
-        start = np.zeros(n + 1, dtype=np.int64)
-        args = (self._points, self._normals, elements.positions, elements.corner_start, elements.corners,
-                self.near, tree.skip, tree.start, tree.stop, reach, np.ascontiguousarray(tree.geometry[:, :3]),
-                self._e_pos, self._e_area, self._order)  # fmt: skip
-        _kt2.near_cells(*args, counts, start, np.zeros(0, dtype=np.int64), np.zeros(0), False)
-        np.cumsum(counts, out=start[1:])
-        col = np.empty(start[-1], dtype=np.int64)
-        val = np.empty(start[-1])
-        _kt2.near_cells(*args, counts, start, col, val, True)
-        return start, col, val
+        return near_cell_table(self._points, self._normals, elements, self.near, tree.skip, tree.start, tree.stop,
+                               reach, tree.geometry, self._e_pos, self._e_area, self._order)  # fmt: skip
 
     def gather(self, radiance) -> np.ndarray:
         """(n, 3) irradiance at every vertex from every other vertex's disk, unshadowed
