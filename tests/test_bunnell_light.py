@@ -279,6 +279,23 @@ def test_ground_reflects_as_the_closed_form_and_the_reference():
     assert math.sqrt(((r.irradiance - ref) ** 2).sum() / (ref**2).sum()) < 0.02
 
 
+def test_cli_bakes_the_box_light_with_bunnell_on_a_reflecting_ground(runner, tmp_path):
+    """`bake --method bunnell --ground auto` on the box (Y up, its floor in the plane): the
+    irradiance is disk_light's with that plane, reflecting, and no warning says it does not."""
+    from aobake.ground import resolve_ground
+
+    out = tmp_path / "lit.ply"
+    r = runner.invoke(main, ["bake", str(CORNELL), "-o", str(out), "--method", "bunnell", "--ground", "auto"])
+    assert r.exit_code == 0, (r.output, r.stderr, r.exception)
+    assert "does not bounce" not in r.stderr
+    surface = load_mesh(CORNELL)
+    shading = read_shading(CORNELL, surface)
+    plane = resolve_ground("auto", surface.positions, "Y")
+    want = disk_light(surface, shading, ground=plane).irradiance
+    np.testing.assert_allclose(_ply_columns(out, IRR), want, rtol=1e-6, atol=1e-7)
+    assert np.abs(want - disk_light(surface, shading).irradiance).max() > 1e-3 * want.max()  # the open front sees it
+
+
 def test_a_floor_modelled_in_the_reflecting_plane_keeps_its_own():
     """A ball on a floor modelled in the --ground plane: the grid has a hole under the floor
     (the reference's plane reflects only where the mesh has nothing); the shadow rays trace
