@@ -357,6 +357,25 @@ def gather_tree(points, normals, recv_order, bucket_start, bounds, n_chunks, ski
                 out[i, 2] = np.float64(f2) + np.float64(n2) + c2
 
 
+@njit(cache=True, error_model="numpy", inline="always")
+def next_near_leaf(node, px, py, pz, skip, node_reach, node_centre):
+    """The next leaf, from ``node`` on in the walk (``skip`` order), whose ``node_reach``
+    sphere holds the point (a node outside it is skipped whole); ``skip.shape[0]``: none
+    left. The near-field tables' walk: ``near_cells`` and ``triangle_cells``."""
+    m = skip.shape[0]
+    while node < m:
+        dx = node_centre[node, 0] - px
+        dy = node_centre[node, 1] - py
+        dz = node_centre[node, 2] - pz
+        if dx * dx + dy * dy + dz * dz >= node_reach[node] * node_reach[node]:
+            node = skip[node]
+        elif skip[node] != node + 1:
+            node += 1
+        else:
+            return node
+    return m
+
+
 @njit(cache=True, error_model="numpy", parallel=True)
 def near_cells(points, normals, positions, corner_start, corners, near, skip, start, stop, node_reach,
                node_centre, e_pos, e_area, e_own, counts, cell_start, cell_col, cell_val, fill):
@@ -407,17 +426,8 @@ def near_cells(points, normals, positions, corner_start, corners, near, skip, st
         quad = np.empty((4, 3))
         found = 0
         e = cell_start[i] if fill else 0
-        node = 0
+        node = next_near_leaf(0, px, py, pz, skip, node_reach, node_centre)
         while node < m:
-            dx = node_centre[node, 0] - px
-            dy = node_centre[node, 1] - py
-            dz = node_centre[node, 2] - pz
-            if dx * dx + dy * dy + dz * dz >= node_reach[node] * node_reach[node]:
-                node = skip[node]
-                continue
-            if skip[node] != node + 1:
-                node += 1
-                continue
             for t in range(start[node], stop[node]):
                 if e_own[t] == i:
                     continue
@@ -433,7 +443,7 @@ def near_cells(points, normals, positions, corner_start, corners, near, skip, st
                     cell_val[e] = np.pi * front
                     e += 1
                 found += 1
-            node = skip[node]
+            node = next_near_leaf(skip[node], px, py, pz, skip, node_reach, node_centre)
         if not fill:
             counts[i] = found
 
@@ -471,17 +481,8 @@ def triangle_cells(points, normals, positions, faces, near, skip, start, stop, n
         found_b = 0
         e_f = cell_start[0, i] if fill else 0
         e_b = cell_start[1, i] if fill else 0
-        node = 0
+        node = next_near_leaf(0, px, py, pz, skip, node_reach, node_centre)
         while node < m:
-            dx = node_centre[node, 0] - px
-            dy = node_centre[node, 1] - py
-            dz = node_centre[node, 2] - pz
-            if dx * dx + dy * dy + dz * dz >= node_reach[node] * node_reach[node]:
-                node = skip[node]
-                continue
-            if skip[node] != node + 1:
-                node += 1
-                continue
             for t in range(start[node], stop[node]):
                 ex = e_pos[t, 0] - px
                 ey = e_pos[t, 1] - py
@@ -513,7 +514,7 @@ def triangle_cells(points, normals, positions, faces, near, skip, start, stop, n
                         e_b += 1
                 found_f += edge_on or h > 0.0
                 found_b += edge_on or h < 0.0
-            node = skip[node]
+            node = next_near_leaf(skip[node], px, py, pz, skip, node_reach, node_centre)
         if not fill:
             counts[0, i] = found_f
             counts[1, i] = found_b
